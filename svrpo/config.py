@@ -1,0 +1,330 @@
+"""Frozen, typed run configuration, named presets and validation.
+
+Every ablation in the paper is one field: `estimator` (svrg | sgd | full), `metric`
+(fisher | identity) and `surrogate` (ratio | loglik). Presets are complete configs; the CLI
+overrides any field by name.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import typing
+from dataclasses import dataclass
+from typing import Any, Literal
+
+Estimator = Literal["full", "sgd", "svrg"]
+Metric = Literal["fisher", "identity"]
+Surrogate = Literal["ratio", "loglik"]
+KlAnchor = Literal["sampling", "iterate"]
+BaselineKind = Literal["linear", "mlp"]
+Scale = Literal["paper", "laptop"]
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot run, with a message saying which field and why."""
+
+
+@dataclass(frozen=True)
+class Config:
+    """Everything that defines a training run; saved as config.json beside its results."""
+
+    env_id: str = "Hopper-v5"
+    """Gymnasium task id; any task with Box observation and action spaces."""
+    seed: int = 0
+    """Seeds the policy initialisation, the mini-batch and Fisher subsets, and every environment."""
+    total_steps: int = 1_000_000
+    """Environment steps for the whole run (a whole number of iterations of batch_size)."""
+
+    # --- the outer loop (Algorithm 1) ---
+    batch_size: int = 5_000
+    """N: environment steps sampled with the anchor policy per outer iteration."""
+    estimator: Estimator = "svrg"
+    """Gradient used at each inner step: `svrg` (g~ + mean_I(grad U_t(w) - grad U_t(w~))),
+    `sgd` (mean_I grad U_t(w), the paper's Fig. 2 ablation) or `full` (grad U(w) on all N: TRPO)."""
+    minibatch_size: int = 1_000
+    """m: samples per inner-step mini-batch (ignored by `full`)."""
+    inner_steps: int = 10
+    """J: inner steps per outer iteration (1 for `full`)."""
+
+    # --- the trust-region step ---
+    metric: Metric = "fisher"
+    """Search direction: `fisher` (CG solve of F s = g, natural gradient) or `identity` (s = g,
+    the paper's Fig. 3 ablation). The step length uses s^T F s in both cases."""
+    fisher_subsample: float = 0.1
+    """nu: fraction of the N samples (a fresh random subset per inner step) in the Fisher product."""
+    surrogate: Surrogate = "ratio"
+    """U_t(w): `ratio` = pi_w(a|s)/pi_old(a|s) * A (the paper) or `loglik` = log pi_w(a|s) * A
+    (the authors' code). Same gradient at w = pi_old."""
+    kl_anchor: KlAnchor = "sampling"
+    """Policy the trust region is measured from: `sampling` (pi_old, all J steps share one
+    delta-ball, the authors' code) or `iterate` (each inner step bounded around w_j)."""
+    max_kl: float = 0.01
+    """delta: bound on the mean KL(anchor || new) accepted by the line search."""
+    cg_iters: int = 10
+    """Conjugate-gradient iterations per solve."""
+    cg_damping: float = 1e-5
+    """Damping lambda added to the Fisher product: (F + lambda I) v."""
+    cg_residual_tol: float = 1e-10
+    """CG stops early once the squared residual falls below this."""
+    backtrack_ratio: float = 0.5
+    """r: the line search tries beta * r^k, k = 0..max_backtracks-1."""
+    max_backtracks: int = 10
+    """K: line-search trials before the step is rejected and the parameters restored."""
+
+    # --- advantages and baseline ---
+    gamma: float = 0.995
+    """Discount factor."""
+    gae_lambda: float = 1.0
+    """GAE lambda (1.0: Monte-Carlo returns minus the baseline, as rllab/the paper)."""
+    normalize_advantages: bool = True
+    """Standardise advantages over the whole batch before any mini-batching."""
+    baseline: BaselineKind = "linear"
+    """State-value baseline: `linear` (rllab's feature regression) or `mlp` (a value network)."""
+    baseline_hidden_sizes: tuple[int, ...] = (64, 64)
+    """Hidden sizes of the `mlp` value function."""
+    baseline_lr: float = 1e-3
+    """Adam learning rate of the `mlp` value function."""
+    baseline_epochs: int = 5
+    """Passes over the batch per `mlp` value-function fit."""
+    baseline_minibatch_size: int = 256
+    """Mini-batch size of the `mlp` value-function fit."""
+    normalize_observations: bool = False
+    """Normalise observations with running mean/std (frozen during an iteration's sampling)."""
+    max_episode_steps: int = 1000
+    """Horizon: episodes are truncated (and bootstrapped) after this many steps."""
+
+    # --- policy ---
+    hidden_sizes: tuple[int, ...] = (64, 64)
+    """Hidden layer widths of the Gaussian MLP policy (tanh)."""
+    init_log_std: float = 0.0
+    """Initial value of the learned state-independent log standard deviation."""
+
+    # --- sampling and bookkeeping ---
+    num_workers: int = 2
+    """Sampling worker processes (0: sample in the main process)."""
+    envs_per_worker: int = 4
+    """Environments each worker steps in lockstep with one batched policy call."""
+    torch_threads: int = 1
+    """Torch threads for the update (results reproduce only at a fixed count)."""
+    variance_probe_batches: int = 8
+    """Extra mini-batches drawn at one inner step per iteration to measure the variance of the
+    svrg and sgd estimates around the full gradient (0 turns the diagnostic off)."""
+    eval_every: int = 10
+    """Deterministic (mean-action) evaluation every this many iterations (0: never)."""
+    eval_episodes: int = 5
+    """Episodes per deterministic evaluation."""
+    checkpoint_every: int = 10
+    """Write a checkpoint every this many iterations (and always at the end)."""
+
+    @property
+    def iterations(self) -> int:
+        """Outer iterations: total_steps // batch_size."""
+        return self.total_steps // self.batch_size
+
+    def replace(self, **changes: Any) -> Config:
+        """A validated copy with some fields changed."""
+        return validate(dataclasses.replace(self, **changes))
+
+    def to_json(self) -> str:
+        """Stable JSON text (tuples become lists)."""
+        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
+
+    @staticmethod
+    def from_dict(values: dict[str, Any]) -> Config:
+        """Build from a JSON-like dict, converting and checking every field."""
+        known = {f.name for f in dataclasses.fields(Config)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ConfigError(f"unknown config field(s): {', '.join(unknown)}")
+        converted = {name: coerce_field(name, value) for name, value in values.items()}
+        return validate(Config(**converted))
+
+    @staticmethod
+    def from_json(text: str) -> Config:
+        """Inverse of to_json."""
+        return Config.from_dict(json.loads(text))
+
+
+_HINTS = typing.get_type_hints(Config)
+
+
+def field_names() -> list[str]:
+    """All config field names."""
+    return [f.name for f in dataclasses.fields(Config)]
+
+
+def coerce_field(name: str, value: Any) -> Any:
+    """Convert a JSON value or a command-line string to the field's type, or raise ConfigError."""
+    if name not in _HINTS:
+        import difflib
+
+        close = difflib.get_close_matches(name, field_names(), n=3)
+        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        raise ConfigError(f"unknown config field '{name}'{hint}")
+    hint = _HINTS[name]
+    origin = typing.get_origin(hint)
+    try:
+        if origin is Literal:
+            choices = typing.get_args(hint)
+            if value not in choices:
+                raise ConfigError(f"{name} must be one of {', '.join(choices)}; got {value!r}")
+            return value
+        if hint is bool:
+            if isinstance(value, bool):
+                return value
+            if isinstance(value, str) and value.lower() in ("true", "1", "yes", "false", "0", "no"):
+                return value.lower() in ("true", "1", "yes")
+            raise ConfigError(f"{name} must be true or false; got {value!r}")
+        if hint is int:
+            if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
+                raise ConfigError(f"{name} must be an integer; got {value!r}")
+            return int(value)
+        if hint is float:
+            if isinstance(value, bool):
+                raise ConfigError(f"{name} must be a number; got {value!r}")
+            return float(value)
+        if origin is tuple:
+            items = value.replace(",", " ").split() if isinstance(value, str) else list(value)
+            return tuple(int(item) for item in items)
+        if hint is str:
+            return str(value)
+    except (TypeError, ValueError) as error:
+        if isinstance(error, ConfigError):
+            raise
+        raise ConfigError(f"{name}: cannot read {value!r} as {hint}") from None
+    raise ConfigError(f"{name}: unsupported field type {hint}")
+
+
+def validate(config: Config) -> Config:
+    """Check ranges and cross-field constraints; return the config or raise ConfigError."""
+    c = config
+    checks: list[tuple[bool, str]] = [
+        (c.batch_size >= 1, "batch_size (N) must be >= 1"),
+        (c.total_steps >= c.batch_size, "total_steps must be >= batch_size (N)"),
+        (c.max_kl > 0, "max_kl (delta) must be > 0"),
+        (0 < c.fisher_subsample <= 1, "fisher_subsample (nu) must be in (0, 1]"),
+        (c.inner_steps >= 1, "inner_steps (J) must be >= 1"),
+        (c.minibatch_size >= 1, "minibatch_size (m) must be >= 1"),
+        (c.estimator == "full" or c.minibatch_size <= c.batch_size,
+         "minibatch_size (m) must be <= batch_size (N)"),
+        (c.estimator != "full" or c.inner_steps == 1,
+         "estimator 'full' (TRPO) takes inner_steps (J) = 1"),
+        (c.cg_iters >= 1, "cg_iters must be >= 1"),
+        (c.cg_damping >= 0, "cg_damping must be >= 0"),
+        (0 < c.backtrack_ratio < 1, "backtrack_ratio must be in (0, 1)"),
+        (c.max_backtracks >= 1, "max_backtracks must be >= 1"),
+        (0 < c.gamma <= 1, "gamma must be in (0, 1]"),
+        (0 <= c.gae_lambda <= 1, "gae_lambda must be in [0, 1]"),
+        (c.max_episode_steps >= 1, "max_episode_steps must be >= 1"),
+        (len(c.hidden_sizes) >= 1 and all(h >= 1 for h in c.hidden_sizes),
+         "hidden_sizes must be positive widths"),
+        (all(h >= 1 for h in c.baseline_hidden_sizes), "baseline_hidden_sizes must be positive"),
+        (c.num_workers >= 0, "num_workers must be >= 0"),
+        (c.envs_per_worker >= 1, "envs_per_worker must be >= 1"),
+        (max(c.num_workers, 1) * c.envs_per_worker <= c.batch_size,
+         "num_workers * envs_per_worker must be <= batch_size (N)"),
+        (c.torch_threads >= 1, "torch_threads must be >= 1"),
+        (c.variance_probe_batches >= 0, "variance_probe_batches must be >= 0"),
+        (c.variance_probe_batches != 1, "variance_probe_batches must be 0 or >= 2"),
+        (c.eval_every >= 0 and c.eval_episodes >= 1, "eval_every >= 0 and eval_episodes >= 1"),
+        (c.checkpoint_every >= 1, "checkpoint_every must be >= 1"),
+        (c.baseline_lr > 0 and c.baseline_epochs >= 1 and c.baseline_minibatch_size >= 1,
+         "baseline_lr > 0, baseline_epochs >= 1, baseline_minibatch_size >= 1"),
+    ]
+    failed = [message for ok, message in checks if not ok]
+    if failed:
+        raise ConfigError("; ".join(failed))
+    return c
+
+
+# --- presets -------------------------------------------------------------------------------
+
+# Per-task (m, J, iterations) from the authors' launchers; Humanoid has none, so (5000, 20).
+PAPER_INNER: dict[str, tuple[int, int, int]] = {
+    "Swimmer": (5000, 20, 500),
+    "Hopper": (5000, 50, 1000),
+    "Walker2d": (1000, 100, 1000),
+    "HalfCheetah": (5000, 30, 1000),
+    "Ant": (5000, 10, 1000),
+    "Humanoid": (5000, 20, 1000),
+}
+_DEEP_TASKS = ("Ant", "Humanoid")
+
+PRESET_NAMES = ("trpo", "svrpo", "svrpo-loglik", "svrpo-sgd", "svrpo-identity")
+SCALES: tuple[Scale, ...] = ("paper", "laptop")
+
+# The ablation field of each preset relative to `svrpo`.
+_ABLATIONS: dict[str, dict[str, Any]] = {
+    "svrpo": {},
+    "svrpo-loglik": {"surrogate": "loglik"},
+    "svrpo-sgd": {"estimator": "sgd"},
+    "svrpo-identity": {"metric": "identity"},
+}
+
+
+def _task_family(env_id: str) -> str:
+    return env_id.split("-")[0]
+
+
+def _scale_fields(scale: Scale, env_id: str) -> dict[str, Any]:
+    family = _task_family(env_id)
+    if scale == "paper":
+        m, j, iterations = PAPER_INNER.get(family, (5000, 20, 1000))
+        return {
+            "batch_size": 50_000,
+            "minibatch_size": m,
+            "inner_steps": j,
+            "total_steps": 50_000 * iterations,
+            "hidden_sizes": (64, 64, 64) if family in _DEEP_TASKS else (64, 64),
+            "gamma": 0.995,
+            "max_episode_steps": 1000,
+            "eval_every": 25,
+            "checkpoint_every": 5,
+        }
+    # laptop: N = 5,000 and m * J = 2N, so one iteration is a few seconds on 2 cores.
+    return {
+        "batch_size": 5_000,
+        "minibatch_size": 1_000,
+        "inner_steps": 10,
+        "total_steps": 1_000_000,
+        "hidden_sizes": (64, 64, 64) if family in _DEEP_TASKS else (64, 64),
+        "gamma": 0.995,
+        "max_episode_steps": 1000,
+    }
+
+
+def make_preset(name: str, env_id: str = "Hopper-v5", scale: Scale = "laptop") -> Config:
+    """The named preset for a task and scale, before any command-line overrides."""
+    if name not in PRESET_NAMES:
+        import difflib
+
+        close = difflib.get_close_matches(name, PRESET_NAMES, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        raise ConfigError(f"unknown preset '{name}'{hint}; choose from {', '.join(PRESET_NAMES)}")
+    if scale not in SCALES:
+        raise ConfigError(f"unknown scale '{scale}'; choose from {', '.join(SCALES)}")
+    fields: dict[str, Any] = {"env_id": env_id, **_scale_fields(scale, env_id)}
+    if name == "trpo":
+        # rllab TRPO: full-batch gradient, unsampled Fisher, backtracking 0.8 x 15.
+        fields.update(
+            estimator="full",
+            inner_steps=1,
+            fisher_subsample=1.0,
+            backtrack_ratio=0.8,
+            max_backtracks=15,
+        )
+    else:
+        # The authors' SVRPO: sub-sampled Fisher (nu = 0.1), backtracking 0.5 x 10.
+        fields.update(estimator="svrg", fisher_subsample=0.1, backtrack_ratio=0.5,
+                      max_backtracks=10)
+        fields.update(_ABLATIONS[name])
+    return validate(Config(**fields))
+
+
+def differing_fields(a: Config, b: Config) -> dict[str, tuple[Any, Any]]:
+    """Fields whose values differ between two configs, name -> (a value, b value)."""
+    da, db = dataclasses.asdict(a), dataclasses.asdict(b)
+    return {k: (da[k], db[k]) for k in da if da[k] != db[k]}
+
+

@@ -1,0 +1,150 @@
+"""Gymnasium environment construction, action rescaling and exact physics save/restore.
+
+This module must not import torch: rollout workers import it.
+"""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+# The integration state is everything mj_step reads (qpos, qvel, act, warm-start, ctrl, applied
+# forces, ...): restoring it makes the next steps bit-identical, which qpos/qvel alone do not.
+_PHYSICS_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+
+
+class EnvError(ValueError):
+    """An environment id that does not exist, or spaces this project cannot handle."""
+
+
+@dataclass(frozen=True)
+class EnvInfo:
+    """Shapes and limits of an environment, read once from a throwaway instance."""
+
+    obs_dim: int
+    """Length of the (1-D, continuous) observation vector."""
+    act_dim: int
+    """Length of the (1-D, continuous) action vector."""
+    action_low: np.ndarray
+    """(act_dim,) lower bounds of the env's action box."""
+    action_high: np.ndarray
+    """(act_dim,) upper bounds of the env's action box."""
+    max_episode_steps: int | None
+    """Time limit after which episodes are truncated, or None for no limit."""
+
+
+def make_env(env_id: str, max_episode_steps: int | None = None) -> gym.Env:
+    """Create a Gymnasium env with continuous 1-D Box observation and action spaces.
+
+    max_episode_steps overrides the registered time limit (None keeps it). Raises EnvError for
+    an unknown id (suggesting close matches) or for spaces the Gaussian policy cannot drive.
+    """
+    if env_id not in gym.registry:
+        matches = difflib.get_close_matches(env_id, list(gym.registry.keys()), n=3, cutoff=0.6)
+        hint = f" Did you mean {', '.join(repr(m) for m in matches)}?" if matches else ""
+        raise EnvError(f"Unknown Gymnasium environment id {env_id!r}.{hint}")
+    env = gym.make(env_id, max_episode_steps=max_episode_steps)
+    try:
+        _check_spaces(env_id, env)
+    except EnvError:
+        env.close()
+        raise
+    return env
+
+
+def _check_spaces(env_id: str, env: gym.Env) -> None:
+    """Raise EnvError unless both spaces are 1-D Boxes (Gaussian actions, flat observations)."""
+    for name, space in (("action", env.action_space), ("observation", env.observation_space)):
+        if not isinstance(space, gym.spaces.Box):
+            raise EnvError(
+                f"{env_id!r} has a {type(space).__name__} {name} space; only continuous "
+                f"(Box) {name} spaces are supported."
+            )
+        if len(space.shape) != 1:
+            raise EnvError(
+                f"{env_id!r} has a {name} Box of shape {space.shape}; only 1-D Boxes are "
+                "supported (flatten it with a wrapper first)."
+            )
+
+
+def env_info(env_id: str, max_episode_steps: int | None = None) -> EnvInfo:
+    """Read the dimensions, action bounds and time limit of env_id (creates and closes an env)."""
+    env = make_env(env_id, max_episode_steps)
+    try:
+        obs_space, act_space = env.observation_space, env.action_space
+        assert isinstance(obs_space, gym.spaces.Box) and isinstance(act_space, gym.spaces.Box)
+        return EnvInfo(
+            obs_dim=int(obs_space.shape[0]),
+            act_dim=int(act_space.shape[0]),
+            action_low=np.asarray(act_space.low, dtype=np.float64).copy(),
+            action_high=np.asarray(act_space.high, dtype=np.float64).copy(),
+            max_episode_steps=None if env.spec is None else env.spec.max_episode_steps,
+        )
+    finally:
+        env.close()
+
+
+def scale_action(action: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Map a policy action in [-1, 1] to the env's box: clip, then low + (a + 1) (high - low) / 2.
+
+    rllab's convention: the Gaussian sample stays unclipped in the batch (its log-probability is
+    what the surrogate uses); only the control the env receives is clipped. Works row-wise on a
+    (..., act_dim) array.
+    """
+    clipped = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+    return low + (clipped + 1.0) * 0.5 * (high - low)
+
+
+def get_env_state(env: gym.Env) -> dict[str, Any]:
+    """Everything a MuJoCo env needs to continue bit-exactly, as plain numpy/python values.
+
+    That is the MuJoCo integration state, the env's reset generator, and the time-limit counter.
+    Observations and episode bookkeeping are the caller's business.
+    """
+    model, data = _mujoco_handles(env)
+    physics = np.empty(mujoco.mj_stateSize(model, _PHYSICS_STATE), dtype=np.float64)
+    mujoco.mj_getState(model, data, physics, _PHYSICS_STATE)
+    return {
+        "physics": physics,
+        "np_random": env.unwrapped.np_random.bit_generator.state,
+        "elapsed_steps": _elapsed_steps(env),
+    }
+
+
+def set_env_state(env: gym.Env, state: dict[str, Any]) -> None:
+    """Restore a state taken by get_env_state on an env of the same id."""
+    model, data = _mujoco_handles(env)
+    physics = np.asarray(state["physics"], dtype=np.float64)
+    expected = mujoco.mj_stateSize(model, _PHYSICS_STATE)
+    if physics.shape != (expected,):
+        raise ValueError(f"physics state has shape {physics.shape}, this env needs ({expected},)")
+    mujoco.mj_setState(model, data, physics, _PHYSICS_STATE)
+    # Derived quantities (positions of bodies, contacts, cfrc_ext) are recomputed as after a step,
+    # so anything the env reads before its next mj_step matches the original run.
+    mujoco.mj_forward(model, data)
+    mujoco.mj_rnePostConstraint(model, data)
+    env.unwrapped.np_random.bit_generator.state = state["np_random"]
+    if state["elapsed_steps"] is not None:
+        env.set_wrapper_attr("_elapsed_steps", int(state["elapsed_steps"]), force=False)
+
+
+def _mujoco_handles(env: gym.Env) -> tuple[Any, Any]:
+    """(MjModel, MjData) of a Gymnasium MuJoCo env; EnvError for any other kind of env."""
+    base = env.unwrapped
+    if not (hasattr(base, "model") and hasattr(base, "data")):
+        raise EnvError(f"{type(base).__name__} is not a MuJoCo env; its state cannot be saved")
+    return base.model, base.data
+
+
+def _elapsed_steps(env: gym.Env) -> int | None:
+    """Steps taken in the current episode as counted by the TimeLimit wrapper, if there is one."""
+    try:
+        value = env.get_wrapper_attr("_elapsed_steps")
+    except AttributeError:
+        return None
+    return None if value is None else int(value)

@@ -1,0 +1,110 @@
+"""The only place that writes run output: progress.csv, TensorBoard events and the progress bar."""
+
+from __future__ import annotations
+
+import csv
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+# Columns that depend on the machine, not on the seed: left out of determinism checks.
+WALL_CLOCK_COLUMNS = ("wall_time", "time_sampling", "time_update", "steps_per_second")
+
+
+def truncate_progress(path: Path, keep_iterations: int) -> None:
+    """Keep the header and the rows with iteration < keep_iterations (for resume)."""
+    if not path.exists():
+        return
+    with open(path, newline="") as handle:
+        rows = list(csv.reader(handle))
+    if not rows:
+        return
+    header, body = rows[0], rows[1:]
+    column = header.index("iteration")
+    kept = [row for row in body if len(row) == len(header) and int(row[column]) < keep_iterations]
+    temporary = path.with_name(path.name + ".tmp")
+    with open(temporary, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(header)
+        writer.writerows(kept)
+    temporary.replace(path)
+
+
+def read_progress(path: Path) -> list[dict[str, float]]:
+    """progress.csv as a list of rows of floats (empty cells become nan)."""
+    with open(path, newline="") as handle:
+        return [
+            {key: float(value) if value not in ("", None) else math.nan for key, value in row.items()}
+            for row in csv.DictReader(handle)
+        ]
+
+
+class RunLogger:
+    """One CSV row and one TensorBoard scalar set per iteration, plus a tqdm progress bar."""
+
+    def __init__(
+        self, run_dir: Path, total_steps: int, initial_steps: int = 0, show_progress: bool = True
+    ) -> None:
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.csv_path = run_dir / "progress.csv"
+        self._writer = SummaryWriter(log_dir=str(run_dir / "tensorboard"))
+        self._header: list[str] | None = None
+        if self.csv_path.exists() and self.csv_path.stat().st_size > 0:
+            with open(self.csv_path, newline="") as handle:
+                self._header = next(csv.reader(handle), None)
+        self._bar = tqdm(
+            total=total_steps,
+            initial=initial_steps,
+            unit="step",
+            unit_scale=True,
+            dynamic_ncols=True,
+            disable=not show_progress,
+            file=sys.stderr,
+        )
+
+    def log(self, row: dict[str, Any]) -> None:
+        """Append `row` (same keys every iteration) to progress.csv and TensorBoard."""
+        if self._header is None:
+            self._header = list(row)
+            with open(self.csv_path, "w", newline="") as handle:
+                csv.writer(handle).writerow(self._header)
+        with open(self.csv_path, "a", newline="") as handle:
+            csv.writer(handle).writerow([_format(row.get(key)) for key in self._header])
+        step = int(row["env_steps"])
+        for key, value in row.items():
+            numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
+            if numeric and key != "env_steps" and math.isfinite(value):
+                self._writer.add_scalar(key, value, step)
+        self._writer.flush()
+        self._bar.update(step - self._bar.n)
+        postfix = {
+            "return": _short(row.get("average_return")),
+            "steps/s": _short(row.get("steps_per_second")),
+        }
+        self._bar.set_postfix(postfix, refresh=True)
+
+    def message(self, text: str) -> None:
+        """A line printed above the progress bar."""
+        self._bar.write(text, file=sys.stderr)
+
+    def close(self) -> None:
+        self._bar.close()
+        self._writer.close()
+
+
+def _format(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return "" if math.isnan(value) else repr(value)
+    return str(value)
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, float) and math.isfinite(value):
+        return f"{value:.1f}"
+    return "-"

@@ -1,0 +1,94 @@
+"""Gaussian MLP policy: tanh hidden layers, linear mean head, learned state-independent log-std."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from svrpo.policy_snapshot import PolicySnapshot
+
+
+class GaussianMlpPolicy(nn.Module):
+    """pi_w(a|s) = N(mu_w(s), diag(exp(log_std))^2), the rllab GaussianMLPPolicy with adaptive std."""
+
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        hidden_sizes: tuple[int, ...] = (64, 64),
+        init_log_std: float = 0.0,
+    ) -> None:
+        super().__init__()
+        self.obs_dim = obs_dim
+        self.act_dim = act_dim
+        layers: list[nn.Module] = []
+        in_features = obs_dim
+        for width in hidden_sizes:
+            layers += [nn.Linear(in_features, width), nn.Tanh()]
+            in_features = width
+        head = nn.Linear(in_features, act_dim)
+        # A small output layer keeps the initial mean near zero, so the first batch explores
+        # around the centre of the action box (as rllab and SB3 do).
+        nn.init.uniform_(head.weight, -0.01, 0.01)
+        nn.init.zeros_(head.bias)
+        layers.append(head)
+        self.mean_net = nn.Sequential(*layers)
+        self.log_std = nn.Parameter(torch.full((act_dim,), float(init_log_std)))
+
+    def forward(self, observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, obs_dim) -> (mean (B, act_dim), log_std (act_dim,))."""
+        return self.mean_net(observations), self.log_std
+
+    def log_prob(self, observations: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """log pi_w(a_t|s_t) for each row, shape (B,)."""
+        mean, log_std = self(observations)
+        return gaussian_log_prob(actions, mean, log_std)
+
+    def entropy(self) -> torch.Tensor:
+        """Entropy of the (state-independent) action distribution, a scalar."""
+        return (self.log_std + 0.5 * math.log(2.0 * math.pi * math.e)).sum()
+
+    def snapshot(
+        self,
+        obs_mean: torch.Tensor | None = None,
+        obs_std: torch.Tensor | None = None,
+        obs_clip: float = 10.0,
+    ) -> PolicySnapshot:
+        """Copy the weights into a torch-free PolicySnapshot for sampling workers."""
+        linears = [m for m in self.mean_net if isinstance(m, nn.Linear)]
+        return PolicySnapshot(
+            weights=tuple(m.weight.detach().double().numpy().copy() for m in linears),
+            biases=tuple(m.bias.detach().double().numpy().copy() for m in linears),
+            log_std=self.log_std.detach().double().numpy().copy(),
+            obs_mean=None if obs_mean is None else obs_mean.double().numpy().copy(),
+            obs_std=None if obs_std is None else obs_std.double().numpy().copy(),
+            obs_clip=obs_clip,
+        )
+
+
+def gaussian_log_prob(
+    actions: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor
+) -> torch.Tensor:
+    """log N(a; mean, diag(exp(log_std))^2) summed over action dimensions, shape (B,)."""
+    z = (actions - mean) * torch.exp(-log_std)
+    return -(0.5 * z.pow(2) + log_std + 0.5 * math.log(2.0 * math.pi)).sum(dim=-1)
+
+
+def gaussian_kl(
+    old_mean: torch.Tensor,
+    old_log_std: torch.Tensor,
+    new_mean: torch.Tensor,
+    new_log_std: torch.Tensor,
+) -> torch.Tensor:
+    """KL(N_old || N_new) per row for diagonal Gaussians, shape (B,).
+
+    KL = sum_i [log s_new/s_old + (s_old^2 + (mu_old - mu_new)^2) / (2 s_new^2) - 1/2].
+    """
+    old_var = torch.exp(2.0 * old_log_std)
+    new_var = torch.exp(2.0 * new_log_std)
+    per_dim = (
+        new_log_std - old_log_std + (old_var + (old_mean - new_mean).pow(2)) / (2.0 * new_var) - 0.5
+    )
+    return per_dim.sum(dim=-1)

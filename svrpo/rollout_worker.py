@@ -1,0 +1,230 @@
+"""Steps a group of environments in lockstep with batched NumPy policy inference.
+
+This runs inside sampling worker processes and must not import torch (directly or through the
+modules it imports): torch would add seconds of start-up and its own thread pool to every worker.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import traceback
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from svrpo.envs import get_env_state, make_env, scale_action, set_env_state
+from svrpo.policy_snapshot import PolicySnapshot
+
+THREAD_ENV_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+"""BLAS/OpenMP thread-count variables pinned to 1 in workers (one thread each measured fastest)."""
+
+
+@dataclass(frozen=True)
+class WorkerChunk:
+    """Transitions from one worker's envs, env by env, each env's steps contiguous in time order.
+
+    Field meanings are those of sampling.Batch; shapes use n = total steps of this worker.
+    """
+
+    observations: np.ndarray  # (n, obs_dim) float32
+    actions: np.ndarray  # (n, act_dim) float32, exactly the samples that were executed
+    rewards: np.ndarray  # (n,) float32
+    next_observations: np.ndarray  # (n, obs_dim) float32
+    terminated: np.ndarray  # (n,) bool
+    truncated: np.ndarray  # (n,) bool
+    segment_end: np.ndarray  # (n,) bool
+    timesteps: np.ndarray  # (n,) int64
+    episode_returns: np.ndarray  # (k,) float64, env by env, in order of ending
+    episode_lengths: np.ndarray  # (k,) int64
+
+
+class RolloutWorker:
+    """E persistent environments stepped in lockstep; episodes carry over between sample() calls.
+
+    Env i (global index worker_index * E + i) is seeded with seed + global index at its first
+    reset only; later resets draw from the env's own generator. Action noise comes from one
+    Generator per worker, seeded by SeedSequence([seed, worker_index]).
+    """
+
+    def __init__(
+        self,
+        env_id: str,
+        num_envs: int,
+        seed: int,
+        worker_index: int = 0,
+        max_episode_steps: int | None = None,
+    ) -> None:
+        self.env_id = env_id
+        self.max_episode_steps = max_episode_steps
+        self.envs = [make_env(env_id, max_episode_steps) for _ in range(num_envs)]
+        self._eval_envs: list[Any] = []
+        space = self.envs[0].action_space
+        assert isinstance(space, gym.spaces.Box)  # make_env checked it
+        self._low = np.asarray(space.low, dtype=np.float64)
+        self._high = np.asarray(space.high, dtype=np.float64)
+        self._rng = np.random.default_rng(np.random.SeedSequence([seed, worker_index]))
+        first = worker_index * num_envs
+        self._obs = np.stack(
+            [env.reset(seed=seed + first + i)[0] for i, env in enumerate(self.envs)]
+        ).astype(np.float64)
+        self._timestep = np.zeros(num_envs, dtype=np.int64)
+        self._return = np.zeros(num_envs, dtype=np.float64)
+
+    def sample(self, snapshot: PolicySnapshot, steps_per_env: Sequence[int]) -> WorkerChunk:
+        """Take steps_per_env[i] steps in env i, one batched policy call per lockstep step."""
+        counts = np.asarray(steps_per_env, dtype=np.int64)
+        if counts.shape != (len(self.envs),) or (counts < 0).any():
+            raise ValueError(f"need {len(self.envs)} non-negative step counts, got {counts}")
+        n, obs_dim = int(counts.sum()), self._obs.shape[1]
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        obs = np.empty((n, obs_dim), dtype=np.float32)
+        next_obs = np.empty((n, obs_dim), dtype=np.float32)
+        actions = np.empty((n, len(self._low)), dtype=np.float32)
+        rewards = np.empty(n, dtype=np.float32)
+        terminated, truncated = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        timesteps = np.empty(n, dtype=np.int64)
+        ended: list[list[tuple[float, int]]] = [[] for _ in self.envs]
+        for k in range(int(counts.max(initial=0))):
+            active = np.flatnonzero(counts > k)
+            # Executed actions are rounded to float32 first, so the batch stores exactly what
+            # the env received (before clipping) and a replay of the batch is bit-exact.
+            sampled = snapshot.sample_action(self._obs[active], self._rng).astype(np.float32)
+            for action, i in zip(sampled, active, strict=True):
+                row = starts[i] + k
+                obs[row], actions[row], timesteps[row] = self._obs[i], action, self._timestep[i]
+                control = scale_action(action, self._low, self._high)
+                observation, reward, term, trunc, _ = self.envs[i].step(control)
+                rewards[row], terminated[row], truncated[row] = reward, term, trunc
+                next_obs[row] = observation
+                self._return[i] += float(reward)
+                self._timestep[i] += 1
+                if term or trunc:
+                    ended[i].append((float(self._return[i]), int(self._timestep[i])))
+                    observation, _ = self.envs[i].reset(); next_obs[row] = observation
+                    self._return[i], self._timestep[i] = 0.0, 0
+                self._obs[i] = observation
+        segment_end = np.zeros(n, dtype=bool)
+        last = (starts + counts - 1)[counts > 0]
+        segment_end[last] = ~(terminated[last] | truncated[last])
+        episodes = [episode for per_env in ended for episode in per_env]
+        return WorkerChunk(
+            observations=obs,
+            actions=actions,
+            rewards=rewards,
+            next_observations=next_obs,
+            terminated=terminated,
+            truncated=truncated,
+            segment_end=segment_end,
+            timesteps=timesteps,
+            episode_returns=np.array([r for r, _ in episodes], dtype=np.float64),
+            episode_lengths=np.array([length for _, length in episodes], dtype=np.int64),
+        )
+
+    def evaluate(
+        self, snapshot: PolicySnapshot, episode_indices: Sequence[int], seed: int
+    ) -> np.ndarray:
+        """Undiscounted returns of mean-action episodes, episode k reset with seed + k.
+
+        Runs on separate eval envs (training episodes are untouched), up to E episodes in
+        lockstep. Returns one return per entry of episode_indices, in that order.
+        """
+        if not self._eval_envs:
+            self._eval_envs = [make_env(self.env_id, self.max_episode_steps) for _ in self.envs]
+        returns = np.zeros(len(episode_indices), dtype=np.float64)
+        pending = list(range(len(episode_indices)))[::-1]
+        running: dict[int, int] = {}  # eval env slot -> position in episode_indices
+        obs = np.zeros_like(self._obs)
+        while pending or running:
+            for slot in range(len(self._eval_envs)):
+                if slot not in running and pending:
+                    running[slot] = pending.pop()
+                    index = int(episode_indices[running[slot]])
+                    obs[slot] = self._eval_envs[slot].reset(seed=seed + index)[0]
+            slots = sorted(running)
+            means = snapshot.mean_action(obs[slots])
+            for mean, slot in zip(means, slots, strict=True):
+                control = scale_action(mean, self._low, self._high)
+                obs[slot], reward, term, trunc, _ = self._eval_envs[slot].step(control)
+                returns[running[slot]] += float(reward)
+                if term or trunc:
+                    del running[slot]
+        return returns
+
+    def get_state(self) -> dict[str, Any]:
+        """Plain numpy/python state from which set_state resumes sampling bit-exactly."""
+        return {
+            "rng": self._rng.bit_generator.state,
+            "observations": self._obs.copy(),
+            "timesteps": self._timestep.copy(),
+            "episode_returns": self._return.copy(),
+            "envs": [get_env_state(env) for env in self.envs],
+        }
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Restore a state from get_state of a worker with the same env id and env count."""
+        if len(state["envs"]) != len(self.envs):
+            raise ValueError(f"state holds {len(state['envs'])} envs, worker has {len(self.envs)}")
+        for env, env_state in zip(self.envs, state["envs"], strict=True):
+            set_env_state(env, env_state)
+        self._rng.bit_generator.state = state["rng"]
+        self._obs = np.array(state["observations"], dtype=np.float64)
+        self._timestep = np.array(state["timesteps"], dtype=np.int64)
+        self._return = np.array(state["episode_returns"], dtype=np.float64)
+
+    def close(self) -> None:
+        """Close all training and evaluation envs."""
+        for env in self.envs + self._eval_envs:
+            env.close()
+
+
+def worker_main(
+    conn: Connection,
+    env_id: str,
+    num_envs: int,
+    seed: int,
+    worker_index: int,
+    max_episode_steps: int | None,
+) -> None:
+    """Process entry: build a RolloutWorker, then serve (command, args) requests until 'close'.
+
+    Replies are ('ok', result) or ('error', traceback text). The parent already starts workers
+    with the thread variables set (BLAS reads them when it loads); setting them here as well
+    covers libraries that read them lazily.
+    """
+    for name in THREAD_ENV_VARS:
+        os.environ[name] = "1"
+    # Ctrl-C reaches the whole process group; the parent handles it and closes the workers.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        worker = RolloutWorker(env_id, num_envs, seed, worker_index, max_episode_steps)
+    except Exception:
+        conn.send(("error", traceback.format_exc()))
+        conn.close()
+        return
+    conn.send(("ok", None))
+    commands: dict[str, Callable[..., Any]] = {
+        "sample": worker.sample,
+        "evaluate": worker.evaluate,
+        "get_state": worker.get_state,
+        "set_state": worker.set_state,
+    }
+    try:
+        while True:
+            try:
+                command, args = conn.recv()
+            except EOFError:  # the parent has gone away
+                break
+            if command == "close":
+                break
+            try:
+                conn.send(("ok", commands[command](*args)))
+            except Exception:
+                conn.send(("error", traceback.format_exc()))
+    finally:
+        worker.close()
+        conn.close()

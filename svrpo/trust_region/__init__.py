@@ -1,0 +1,1 @@
+"""Natural-gradient machinery: conjugate gradient, Fisher/identity metrics, line search."""

@@ -1,0 +1,189 @@
+"""One outer iteration's policy update: J inner trust-region steps (Algorithm 1, lines 5-12).
+
+TRPO is the same function with estimator `full`, J = 1 and nu = 1; the ablations change one
+field of the config. The function returns its statistics; only the training loop logs them.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+
+from svrpo.config import Config
+from svrpo.estimators import GradientEstimator, SubsetGradient, estimator_variances
+from svrpo.objectives import SurrogateBatch, mean_kl_from, surrogate
+from svrpo.parameters import flat_gradient, flat_parameters, set_flat_parameters
+from svrpo.policy import GaussianMlpPolicy
+from svrpo.trust_region.line_search import backtracking_line_search
+from svrpo.trust_region.metrics import fisher_vector_product, max_step_length, search_direction
+
+
+@dataclass(frozen=True)
+class UpdateStats:
+    """What one policy update did; every field becomes a progress.csv column."""
+
+    inner_steps_attempted: int
+    inner_steps_accepted: int
+    backtracks: int
+    """Line-search trials summed over inner steps."""
+    skipped_curvature: int
+    """Inner steps skipped because s^T F s <= 0 or was not finite."""
+    skipped_nonfinite_gradient: int
+    """Inner steps skipped because the gradient estimate was not finite."""
+    surrogate_improvement: float
+    """U(w_J) - U(w~) on the full batch."""
+    expected_improvement: float
+    """Sum over accepted steps of g^T (accepted step): the linear model's prediction."""
+    mean_kl: float
+    """Mean KL(pi_old || pi_{w_J}) on the full batch."""
+    cg_residual: float
+    """Mean final squared CG residual over the inner steps (nan for the identity metric)."""
+    cg_iterations: float
+    """Mean CG iterations per inner step."""
+    svrg_variance: float
+    """Probe: mean ||g_svrg - grad U(w)||^2 at inner step floor(J/2) (nan when off)."""
+    sgd_variance: float
+    """Probe: mean ||g_sgd - grad U(w)||^2 on the same mini-batches (nan when off)."""
+    variance_ratio: float
+    """svrg_variance / sgd_variance (nan when off)."""
+
+
+def _subset_gradient(policy: GaussianMlpPolicy, batch: SurrogateBatch, config: Config) -> SubsetGradient:
+    def gradient(indices: torch.Tensor | None) -> torch.Tensor:
+        rows = batch if indices is None else batch.subset(indices)
+        return flat_gradient(surrogate(policy, rows, config.surrogate), policy)
+
+    return gradient
+
+
+def _objective_and_kl(
+    policy: GaussianMlpPolicy,
+    batch: SurrogateBatch,
+    config: Config,
+    anchor_mean: torch.Tensor,
+    anchor_log_std: torch.Tensor,
+) -> Callable[[], tuple[float, float]]:
+    """() -> (U(w), mean KL(anchor || pi_w)) on the full batch at the policy's current w."""
+
+    def evaluate() -> tuple[float, float]:
+        with torch.no_grad():
+            objective = float(surrogate(policy, batch, config.surrogate))
+            kl = float(mean_kl_from(anchor_mean, anchor_log_std, policy, batch.observations))
+        return objective, kl
+
+    return evaluate
+
+
+def _draw(count: int, size: int, generator: torch.Generator) -> torch.Tensor:
+    """`size` distinct row indices out of `count`, uniformly (all rows, in order, if size >= count)."""
+    if size >= count:
+        return torch.arange(count)
+    return torch.randperm(count, generator=generator)[:size]
+
+
+def update_policy(
+    policy: GaussianMlpPolicy,
+    batch: SurrogateBatch,
+    config: Config,
+    generator: torch.Generator,
+    probe_generator: torch.Generator,
+) -> UpdateStats:
+    """Run the J inner steps in place on `policy` (whose parameters are w~ on entry).
+
+    `generator` draws the mini-batches and Fisher subsets (so two estimators run with the same
+    seed see the same data); `probe_generator` draws only the variance-probe mini-batches, so
+    switching the probe off does not change training.
+    """
+    count = len(batch)
+    snapshot_policy = copy.deepcopy(policy)  # w~: frozen for the whole iteration
+    current = _subset_gradient(policy, batch, config)
+    snapshot = _subset_gradient(snapshot_policy, batch, config)
+    estimator = GradientEstimator(config.estimator, current, snapshot, snapshot(None))
+    fisher_rows = max(1, int(round(config.fisher_subsample * count)))
+    minibatch_rows = count if config.estimator == "full" else config.minibatch_size
+
+    with torch.no_grad():
+        start_objective = float(surrogate(policy, batch, config.surrogate))
+    accepted = backtracks = skipped_curvature = skipped_gradient = 0
+    expected = 0.0
+    cg_residuals: list[float] = []
+    cg_iterations: list[int] = []
+    variances = (math.nan, math.nan, math.nan)
+    probe_step = config.inner_steps // 2
+
+    for step in range(config.inner_steps):
+        indices = _draw(count, minibatch_rows, generator)
+        fisher_indices = _draw(count, fisher_rows, generator)
+        if step == probe_step and config.variance_probe_batches > 0 and config.estimator != "full":
+            probes = [_draw(count, minibatch_rows, probe_generator)
+                      for _ in range(config.variance_probe_batches)]
+            diagnostic = estimator_variances(current, snapshot, estimator.snapshot_full_gradient, probes)
+            variances = (diagnostic.svrg_variance, diagnostic.sgd_variance, diagnostic.ratio)
+
+        gradient = estimator.estimate(indices)
+        if not torch.isfinite(gradient).all():
+            skipped_gradient += 1
+            continue
+        fisher_product = fisher_vector_product(
+            policy, batch.observations[fisher_indices], config.cg_damping
+        )
+        direction, cg = search_direction(
+            config.metric, gradient, fisher_product, config.cg_iters, config.cg_residual_tol
+        )
+        if cg is not None:
+            cg_residuals.append(cg.residual_norm_sq)
+            cg_iterations.append(cg.iterations)
+        step_length = max_step_length(direction, fisher_product, config.max_kl)
+        if step_length is None or not torch.isfinite(direction).all():
+            skipped_curvature += 1
+            continue
+
+        if config.kl_anchor == "sampling":
+            anchor_mean, anchor_log_std = batch.old_mean, batch.old_log_std
+        else:
+            with torch.no_grad():
+                anchor_mean, anchor_log_std = policy(batch.observations)
+        anchor_log_std = anchor_log_std.expand_as(anchor_mean)
+        with torch.no_grad():
+            step_objective = float(surrogate(policy, batch, config.surrogate))
+
+        evaluate = _objective_and_kl(policy, batch, config, anchor_mean, anchor_log_std)
+        full_step = step_length * direction
+        result = backtracking_line_search(
+            start=flat_parameters(policy),
+            full_step=full_step,
+            set_parameters=lambda flat: set_flat_parameters(policy, flat),
+            evaluate=evaluate,
+            start_objective=step_objective,
+            max_kl=config.max_kl,
+            ratio=config.backtrack_ratio,
+            max_backtracks=config.max_backtracks,
+        )
+        backtracks += result.backtracks
+        if result.accepted:
+            accepted += 1
+            expected += float(gradient.dot(full_step)) * result.step_fraction
+
+    with torch.no_grad():
+        final_objective = float(surrogate(policy, batch, config.surrogate))
+        old_log_std = batch.old_log_std.expand_as(batch.old_mean)
+        final_kl = float(mean_kl_from(batch.old_mean, old_log_std, policy, batch.observations))
+    return UpdateStats(
+        inner_steps_attempted=config.inner_steps,
+        inner_steps_accepted=accepted,
+        backtracks=backtracks,
+        skipped_curvature=skipped_curvature,
+        skipped_nonfinite_gradient=skipped_gradient,
+        surrogate_improvement=final_objective - start_objective,
+        expected_improvement=expected,
+        mean_kl=final_kl,
+        cg_residual=sum(cg_residuals) / len(cg_residuals) if cg_residuals else math.nan,
+        cg_iterations=sum(cg_iterations) / len(cg_iterations) if cg_iterations else math.nan,
+        svrg_variance=variances[0],
+        sgd_variance=variances[1],
+        variance_ratio=variances[2],
+    )

@@ -1,0 +1,112 @@
+"""Tests for svrpo.envs: construction errors, env_info, action scaling, exact state restore."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from svrpo.envs import EnvError, env_info, get_env_state, make_env, scale_action, set_env_state
+
+
+class _SpacesEnv(gym.Env):
+    """A do-nothing env with configurable spaces, for the space checks."""
+
+    def __init__(self, observation_space: gym.Space[Any], action_space: gym.Space[Any]) -> None:
+        self.observation_space = observation_space
+        self.action_space = action_space
+
+
+_BOX = gym.spaces.Box(-1.0, 1.0, (2,))
+gym.register(
+    "SvrpoTestDictObs-v0",
+    entry_point=lambda: _SpacesEnv(gym.spaces.Dict({"x": _BOX}), _BOX),
+)
+gym.register(
+    "SvrpoTestImageObs-v0",
+    entry_point=lambda: _SpacesEnv(gym.spaces.Box(0.0, 1.0, (4, 4)), _BOX),
+)
+
+
+def test_unknown_id_suggests_close_match() -> None:
+    with pytest.raises(EnvError, match="Hoper-v5") as error:
+        make_env("Hoper-v5")
+    assert "Did you mean" in str(error.value) and "'Hopper-v5'" in str(error.value)
+
+
+def test_unknown_id_without_close_match_has_no_suggestion() -> None:
+    with pytest.raises(EnvError) as error:
+        make_env("CompletelyUnrelatedName-v9")
+    assert "Did you mean" not in str(error.value)
+
+
+def test_discrete_action_space_is_rejected() -> None:
+    with pytest.raises(EnvError, match=r"Discrete action space"):
+        make_env("CartPole-v1")
+
+
+def test_non_box_observation_space_is_rejected() -> None:
+    with pytest.raises(EnvError, match=r"Dict observation space"):
+        make_env("SvrpoTestDictObs-v0")
+
+
+def test_multidimensional_box_is_rejected() -> None:
+    with pytest.raises(EnvError, match=r"observation Box of shape \(4, 4\)"):
+        make_env("SvrpoTestImageObs-v0")
+
+
+def test_env_info_hopper() -> None:
+    info = env_info("Hopper-v5")
+    assert (info.obs_dim, info.act_dim, info.max_episode_steps) == (11, 3, 1000)
+    np.testing.assert_array_equal(info.action_low, -np.ones(3))
+    np.testing.assert_array_equal(info.action_high, np.ones(3))
+    assert env_info("Hopper-v5", max_episode_steps=20).max_episode_steps == 20
+
+
+def test_make_env_applies_time_limit() -> None:
+    env = make_env("HalfCheetah-v5", max_episode_steps=5)
+    env.reset(seed=0)
+    flags = [env.step(np.zeros(6))[3] for _ in range(5)]
+    env.close()
+    assert flags == [False, False, False, False, True]
+
+
+def test_scale_action_maps_endpoints_and_clips() -> None:
+    low, high = np.array([-2.0, 0.0]), np.array([2.0, 10.0])
+    np.testing.assert_allclose(scale_action(np.array([-1.0, -1.0]), low, high), [-2.0, 0.0])
+    np.testing.assert_allclose(scale_action(np.array([0.0, 0.0]), low, high), [0.0, 5.0])
+    np.testing.assert_allclose(scale_action(np.array([1.0, 1.0]), low, high), [2.0, 10.0])
+    np.testing.assert_allclose(scale_action(np.array([0.5, -0.5]), low, high), [1.0, 2.5])
+    batch = np.array([[7.0, -3.0], [-1.5, 1.5]])
+    np.testing.assert_allclose(scale_action(batch, low, high), [[2.0, 0.0], [-2.0, 10.0]])
+
+
+def test_env_state_round_trip_is_bit_exact() -> None:
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1.0, 1.0, size=(30, 3))
+    source = make_env("Hopper-v5", max_episode_steps=25)
+    source.reset(seed=1)
+    for action in actions[:10]:
+        source.step(action)
+    state = get_env_state(source)
+
+    def continue_run(env: gym.Env) -> list[Any]:
+        trace: list[Any] = []
+        for action in actions[10:]:
+            obs, reward, terminated, truncated, _ = env.step(action)
+            trace.append((obs.tolist(), reward, terminated, truncated))
+            if terminated or truncated:
+                trace.append(env.reset()[0].tolist())  # the reset noise must match too
+        return trace
+
+    expected = continue_run(source)
+    target = make_env("Hopper-v5", max_episode_steps=25)
+    target.reset(seed=12345)  # a different episode, entirely overwritten by set_env_state
+    target.step(np.ones(3))
+    set_env_state(target, state)
+    assert continue_run(target) == expected
+    assert any(isinstance(item, list) for item in expected), "the run should include a reset"
+    source.close()
+    target.close()
