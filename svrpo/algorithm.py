@@ -158,8 +158,8 @@ def run_iteration(run: Run) -> dict[str, Any]:
         "eval_return": eval_return,
         "episodes": int(returns.size),
         "episode_length": float(batch.episode_lengths.mean()) if returns.size else math.nan,
-        "entropy": float(run.policy.entropy()),
-        "action_std": float(run.policy.log_std.exp().mean()),
+        "entropy": float(run.policy.entropy().detach()),
+        "action_std": float(run.policy.log_std.detach().exp().mean()),
         "baseline_explained_variance": explained,
         "nonfinite_batches": run.nonfinite_batches,
     }

@@ -192,7 +192,8 @@ def coerce_field(name: str, value: Any) -> Any:
     except (TypeError, ValueError) as error:
         if isinstance(error, ConfigError):
             raise
-        raise ConfigError(f"{name}: cannot read {value!r} as {hint}") from None
+        kind = {int: "an integer", float: "a number"}.get(hint, "a list of integers")
+        raise ConfigError(f"{name} must be {kind}; got {value!r}") from None
     raise ConfigError(f"{name}: unsupported field type {hint}")
 
 

@@ -105,7 +105,7 @@ class RolloutWorker:
                 self._timestep[i] += 1
                 if term or trunc:
                     ended[i].append((float(self._return[i]), int(self._timestep[i])))
-                    observation, _ = self.envs[i].reset(); next_obs[row] = observation
+                    observation, _ = self.envs[i].reset()
                     self._return[i], self._timestep[i] = 0.0, 0
                 self._obs[i] = observation
         segment_end = np.zeros(n, dtype=bool)

@@ -84,17 +84,19 @@ def test_scale_action_maps_endpoints_and_clips() -> None:
 
 
 def test_env_state_round_trip_is_bit_exact() -> None:
+    # Gentle actions keep the hopper standing, so the save point is in ground contact: there the
+    # solver's warm start matters, and qpos/qvel alone would not reproduce the run bit for bit.
     rng = np.random.default_rng(0)
-    actions = rng.uniform(-1.0, 1.0, size=(30, 3))
-    source = make_env("Hopper-v5", max_episode_steps=25)
+    actions = rng.uniform(-0.3, 0.3, size=(60, 3))
+    source = make_env("Hopper-v5", max_episode_steps=45)
     source.reset(seed=1)
-    for action in actions[:10]:
-        source.step(action)
+    for action in actions[:20]:
+        assert not any(source.step(action)[2:4])
     state = get_env_state(source)
 
     def continue_run(env: gym.Env) -> list[Any]:
         trace: list[Any] = []
-        for action in actions[10:]:
+        for action in actions[20:]:
             obs, reward, terminated, truncated, _ = env.step(action)
             trace.append((obs.tolist(), reward, terminated, truncated))
             if terminated or truncated:
@@ -102,9 +104,10 @@ def test_env_state_round_trip_is_bit_exact() -> None:
         return trace
 
     expected = continue_run(source)
-    target = make_env("Hopper-v5", max_episode_steps=25)
+    target = make_env("Hopper-v5", max_episode_steps=45)
     target.reset(seed=12345)  # a different episode, entirely overwritten by set_env_state
-    target.step(np.ones(3))
+    for action in actions[:20]:
+        target.step(-action)
     set_env_state(target, state)
     assert continue_run(target) == expected
     assert any(isinstance(item, list) for item in expected), "the run should include a reset"
