@@ -94,10 +94,10 @@ class RolloutWorker:
             # Executed actions are rounded to float32 first, so the batch stores exactly what
             # the env received (before clipping) and a replay of the batch is bit-exact.
             sampled = snapshot.sample_action(self._obs[active], self._rng).astype(np.float32)
-            for action, i in zip(sampled, active, strict=True):
+            controls = scale_action(sampled, self._low, self._high)
+            for action, control, i in zip(sampled, controls, active, strict=True):
                 row = starts[i] + k
                 obs[row], actions[row], timesteps[row] = self._obs[i], action, self._timestep[i]
-                control = scale_action(action, self._low, self._high)
                 observation, reward, term, trunc, _ = self.envs[i].step(control)
                 rewards[row], terminated[row], truncated[row] = reward, term, trunc
                 next_obs[row] = observation
@@ -146,9 +146,8 @@ class RolloutWorker:
                     index = int(episode_indices[running[slot]])
                     obs[slot] = self._eval_envs[slot].reset(seed=seed + index)[0]
             slots = sorted(running)
-            means = snapshot.mean_action(obs[slots])
-            for mean, slot in zip(means, slots, strict=True):
-                control = scale_action(mean, self._low, self._high)
+            controls = scale_action(snapshot.mean_action(obs[slots]), self._low, self._high)
+            for control, slot in zip(controls, slots, strict=True):
                 obs[slot], reward, term, trunc, _ = self._eval_envs[slot].step(control)
                 returns[running[slot]] += float(reward)
                 if term or trunc:

@@ -107,6 +107,18 @@ def test_restores_parameters_exactly_when_every_trial_fails() -> None:
     assert torch.equal(start, start_copy)  # the caller's start tensor is not modified
 
 
+def test_restore_is_start_itself_not_start_plus_zero_step() -> None:
+    """A non-finite step (e.g. from a failed solve) is rejected and the exact start restored:
+    start + 0 * step would be NaN where the step is infinite and +0.0 where start is -0.0."""
+    start = torch.tensor([-0.0, 1.5, -2.0], dtype=torch.float64)
+    step = torch.tensor([1.0, float("inf"), float("nan")], dtype=torch.float64)
+    trials = [(float("nan"), float("nan"))] * 4
+    result, scripted = run(start, step, trials)
+    assert not result.accepted
+    assert torch.equal(scripted.parameters, start)
+    assert torch.equal(torch.signbit(scripted.parameters), torch.signbit(start))
+
+
 def test_kl_equal_to_delta_is_accepted_but_not_above() -> None:
     result, _ = run(START, STEP, [(1.0, 0.01)], max_kl=0.01)
     assert result.accepted

@@ -31,7 +31,7 @@ CHEETAH = _snapshot(17, 6)
 def _chunk_bounds(num_steps: int, num_envs: int) -> list[tuple[int, int]]:
     """[start, stop) of each env's chunk in the flat batch."""
     stops = np.cumsum(steps_per_env(num_steps, num_envs))
-    return [(int(stop - n), int(stop)) for stop, n in zip(stops, np.diff(stops, prepend=0))]
+    return [(int(stop - n), int(stop)) for stop, n in zip(stops, np.diff(stops, prepend=0), strict=True)]
 
 
 def _assert_equal_batches(a: Batch, b: Batch) -> None:
@@ -106,7 +106,7 @@ def test_hopper_termination_resets_and_is_recorded() -> None:
         assert ((final[:, 0] < 0.7) | (np.abs(final[:, 1]) > 0.2)).all()
         assert (batch.actions.abs() > 1.0).any(), "actions must be stored unclipped"
     # Episodes continue across sample() calls: each env picks up where its last chunk stopped.
-    for (_, stop), (start, _) in zip(_chunk_bounds(400, 2), _chunk_bounds(400, 2)):
+    for (_, stop), (start, _) in zip(_chunk_bounds(400, 2), _chunk_bounds(400, 2), strict=True):
         if first.segment_end[stop - 1]:
             assert second.timesteps[start] == first.timesteps[stop - 1] + 1
             assert torch.equal(second.observations[start], first.next_observations[stop - 1])
@@ -133,7 +133,7 @@ def test_same_seed_same_batches_different_seed_differs() -> None:
             return [sampler.sample(HOPPER, 64), sampler.sample(HOPPER, 64)]
 
     first, again, other = run(7), run(7), run(8)
-    for a, b in zip(first, again):
+    for a, b in zip(first, again, strict=True):
         _assert_equal_batches(a, b)
     assert not torch.equal(first[0].observations, other[0].observations)
     assert not torch.equal(first[0].actions, other[0].actions)
