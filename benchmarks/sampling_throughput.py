@@ -131,6 +131,8 @@ def machine_info() -> dict[str, Any]:
         "mujoco": mujoco.__version__,
         "gymnasium": gymnasium.__version__,
         "torch": torch.__version__,
+        # Other processes on the machine skew both measurements; record how busy it was.
+        "load_average_1_5_15min": list(os.getloadavg()),
     }
 
 

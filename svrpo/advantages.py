@@ -62,8 +62,9 @@ def generalized_advantages(
     Shapes: every input (T,), output (T,).
     """
     _check(rewards, values, next_values, terminated, episode_end)
-    not_terminal = 1.0 - terminated.double()
-    deltas = rewards.double() + gamma * not_terminal * next_values.double() - values.double()
+    # where(), not a product with 0: a value after a termination is never read, even if NaN.
+    bootstrap = torch.where(terminated, torch.zeros_like(next_values.double()), next_values.double())
+    deltas = rewards.double() + gamma * bootstrap - values.double()
     carry_on = (1.0 - episode_end.double()) * (gamma * lam)
     advantages = torch.empty_like(deltas)
     d = deltas.tolist()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import typing
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -133,10 +134,6 @@ class Config:
     @staticmethod
     def from_dict(values: dict[str, Any]) -> Config:
         """Build from a JSON-like dict, converting and checking every field."""
-        known = {f.name for f in dataclasses.fields(Config)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ConfigError(f"unknown config field(s): {', '.join(unknown)}")
         converted = {name: coerce_field(name, value) for name, value in values.items()}
         return validate(Config(**converted))
 
@@ -186,7 +183,12 @@ def coerce_field(name: str, value: Any) -> Any:
             return float(value)
         if origin is tuple:
             items = value.replace(",", " ").split() if isinstance(value, str) else list(value)
-            return tuple(int(item) for item in items)
+            widths = []
+            for item in items:
+                if isinstance(item, bool) or float(item) != int(float(item)):
+                    raise ValueError(item)
+                widths.append(int(float(item)))
+            return tuple(widths)
         if hint is str:
             return str(value)
     except (TypeError, ValueError) as error:
@@ -203,7 +205,8 @@ def validate(config: Config) -> Config:
     checks: list[tuple[bool, str]] = [
         (c.batch_size >= 1, "batch_size (N) must be >= 1"),
         (c.total_steps >= c.batch_size, "total_steps must be >= batch_size (N)"),
-        (c.max_kl > 0, "max_kl (delta) must be > 0"),
+        (0 < c.max_kl < math.inf, "max_kl (delta) must be > 0 and finite"),
+        (math.isfinite(c.init_log_std), "init_log_std must be finite"),
         (0 < c.fisher_subsample <= 1, "fisher_subsample (nu) must be in (0, 1]"),
         (c.inner_steps >= 1, "inner_steps (J) must be >= 1"),
         (c.minibatch_size >= 1, "minibatch_size (m) must be >= 1"),

@@ -13,14 +13,15 @@ def flat_parameters(module: nn.Module) -> torch.Tensor:
 
 def set_flat_parameters(module: nn.Module, flat: torch.Tensor) -> None:
     """Write a (P,) vector back into the module's parameters, in place."""
+    expected = sum(p.numel() for p in module.parameters())
+    if flat.numel() != expected:
+        raise ValueError(f"flat vector has {flat.numel()} entries, module has {expected}")
     offset = 0
     with torch.no_grad():
         for p in module.parameters():
             count = p.numel()
             p.copy_(flat[offset : offset + count].view_as(p))
             offset += count
-    if offset != flat.numel():
-        raise ValueError(f"flat vector has {flat.numel()} entries, module has {offset}")
 
 
 def flat_gradient(

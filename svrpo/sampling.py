@@ -12,6 +12,7 @@ import multiprocessing as mp
 import os
 import signal
 import weakref
+from collections.abc import Iterator
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
@@ -106,11 +107,7 @@ class Sampler:
         # Runs on close(), on garbage collection and at interpreter exit: no orphaned workers.
         self._finalizer = weakref.finalize(self, _shutdown, self._procs, self._conns)
         context = mp.get_context("spawn")
-        # BLAS reads its thread count when it loads, so the variables must be in the
-        # environment the child starts with; workers inherit os.environ at spawn.
-        saved = {name: os.environ.get(name) for name in THREAD_ENV_VARS}
-        os.environ.update({name: "1" for name in THREAD_ENV_VARS})
-        try:
+        with _single_threaded_children():
             for index in range(num_workers):
                 parent_end, child_end = context.Pipe()
                 args = (child_end, env_id, envs_per_worker, seed, index, max_episode_steps)
@@ -122,12 +119,6 @@ class Sampler:
                 child_end.close()
                 self._procs.append(proc)
                 self._conns.append(parent_end)
-        finally:
-            for name, value in saved.items():
-                if value is None:
-                    os.environ.pop(name, None)
-                else:
-                    os.environ[name] = value
         try:
             for index in range(num_workers):
                 self._receive(index, timeout=_START_TIMEOUT_S)
@@ -201,12 +192,18 @@ class Sampler:
             return [getattr(self._local, command)(*args[0])]
         if self._broken is not None:
             raise RuntimeError(self._broken)
-        for index, (conn, worker_args) in enumerate(zip(self._conns, args, strict=True)):
-            try:
-                conn.send((command, worker_args))
-            except OSError:  # BrokenPipeError: the worker is gone
-                self._fail(index)
-        return [self._receive(index) for index in range(self.num_workers)]
+        try:
+            for index, (conn, worker_args) in enumerate(zip(self._conns, args, strict=True)):
+                try:
+                    conn.send((command, worker_args))
+                except OSError:  # BrokenPipeError: the worker is gone
+                    self._fail(index)
+            return [self._receive(index) for index in range(self.num_workers)]
+        except BaseException:
+            # Interrupted half-way (e.g. Ctrl-C), unread replies would pair with the next command.
+            if self._broken is None:
+                self._broken = f"a previous {command!r} call was interrupted; create a new Sampler"
+            raise
 
     def _receive(self, index: int, timeout: float | None = None) -> Any:
         """The next reply of worker index; RuntimeError if it died or reported an error."""
@@ -239,6 +236,25 @@ class Sampler:
             "(or restore one from a checkpoint)."
         )
         raise RuntimeError(self._broken)
+
+
+@contextlib.contextmanager
+def _single_threaded_children() -> Iterator[None]:
+    """Set the BLAS/OpenMP thread variables to 1 while children are spawned, then restore them.
+
+    BLAS reads its thread count when it loads, before any worker code runs, so the variables
+    must already be in the environment a spawned child inherits.
+    """
+    saved = {name: os.environ.get(name) for name in THREAD_ENV_VARS}
+    os.environ.update({name: "1" for name in THREAD_ENV_VARS})
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def _to_batch(chunks: list[WorkerChunk]) -> Batch:

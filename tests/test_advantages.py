@@ -137,3 +137,15 @@ def test_standardize() -> None:
     assert float(result.std(unbiased=False)) == pytest.approx(1.0, abs=1e-8)
     # A constant input stays finite (eps guards the division).
     assert torch.equal(standardize(torch.full((5,), 2.0)), torch.zeros(5))
+
+
+def test_value_after_termination_is_never_read_even_if_nan() -> None:
+    rewards = torch.tensor([1.0, 1.0])
+    values = torch.tensor([0.0, 0.0])
+    next_values = torch.tensor([0.0, float("nan")])
+    terminated = torch.tensor([False, True])
+    end = torch.tensor([False, True])
+    gae = generalized_advantages(rewards, values, next_values, terminated, end, 0.9, 1.0)
+    returns = discounted_returns(rewards, next_values, terminated, end, 0.9)
+    assert torch.allclose(gae, torch.tensor([1.9, 1.0]))
+    assert torch.allclose(returns, torch.tensor([1.9, 1.0]))

@@ -20,14 +20,18 @@ class _SpacesEnv(gym.Env):
 
 
 _BOX = gym.spaces.Box(-1.0, 1.0, (2,))
-gym.register(
-    "SvrpoTestDictObs-v0",
-    entry_point=lambda: _SpacesEnv(gym.spaces.Dict({"x": _BOX}), _BOX),
-)
-gym.register(
-    "SvrpoTestImageObs-v0",
-    entry_point=lambda: _SpacesEnv(gym.spaces.Box(0.0, 1.0, (4, 4)), _BOX),
-)
+
+
+def _dict_observation_env(**kwargs: Any) -> gym.Env:
+    return _SpacesEnv(gym.spaces.Dict({"x": _BOX}), _BOX)
+
+
+def _image_observation_env(**kwargs: Any) -> gym.Env:
+    return _SpacesEnv(gym.spaces.Box(0.0, 1.0, (4, 4)), _BOX)
+
+
+gym.register("SvrpoTestDictObs-v0", entry_point=_dict_observation_env)
+gym.register("SvrpoTestImageObs-v0", entry_point=_image_observation_env)
 
 
 def test_unknown_id_suggests_close_match() -> None:

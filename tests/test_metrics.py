@@ -10,7 +10,7 @@ from torch.func import functional_call, grad, hessian, jacrev, vmap
 
 from svrpo.objectives import mean_kl_from
 from svrpo.parameters import flat_parameters, set_flat_parameters
-from svrpo.policy import GaussianMlpPolicy, gaussian_log_prob
+from svrpo.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
 from svrpo.trust_region.metrics import fisher_vector_product, max_step_length, search_direction
 
 OBS_DIM, ACT_DIM, HIDDEN = 3, 2, (4,)
@@ -212,7 +212,7 @@ def test_fisher_direction_solves_the_natural_gradient_system(
     size = fisher.shape[0]
     product = fisher_vector_product(policy, obs, damping=damping)
     g = torch.randn(size, generator=torch.Generator().manual_seed(14), dtype=torch.float64)
-    direction, result = search_direction("fisher", g, product, cg_iters=3 * size, residual_tol=1e-24)
+    direction, result = search_direction("fisher", g, product, cg_iters=size, residual_tol=1e-24)
     damped = fisher + damping * torch.eye(size, dtype=torch.float64)
     expected = torch.linalg.solve(damped, g)
     assert result is not None
@@ -242,3 +242,33 @@ def test_max_step_length_none_for_bad_curvature(curvature: float) -> None:
     s = torch.tensor([1.0, 0.0], dtype=torch.float64)
     matvec = lambda v: torch.tensor([curvature, 0.0], dtype=torch.float64)  # noqa: E731
     assert max_step_length(s, matvec, max_kl=0.01) is None
+
+
+def test_gaussian_kl_closed_form_and_direction() -> None:
+    """KL(N(0, 1) || N(1, 2^2)) = log 2 + (1 + 1) / 8 - 1/2; the reverse is -log 2 + 5/2 - 1/2."""
+    zero, one = torch.zeros(1, 1, dtype=torch.float64), torch.ones(1, 1, dtype=torch.float64)
+    log_two = torch.full((1, 1), math.log(2.0), dtype=torch.float64)
+    forward = gaussian_kl(zero, zero, one, log_two)
+    backward = gaussian_kl(one, log_two, zero, zero)
+    assert float(forward) == pytest.approx(math.log(2.0) + 0.25 - 0.5, rel=1e-12)
+    assert float(backward) == pytest.approx(-math.log(2.0) + 2.5 - 0.5, rel=1e-12)
+
+
+def test_mean_kl_from_measures_kl_anchor_to_policy() -> None:
+    """mean_kl_from(anchor, policy) is mean_s KL(anchor || pi_w), not the reverse."""
+    policy = make_policy(seed=15)
+    obs = observations(4, seed=16)
+    with torch.no_grad():
+        mean, log_std = policy(obs)
+    log_std = log_std.detach()  # forward returns the parameter itself
+    anchor_mean = mean + 0.7
+    anchor_log_std = (log_std + 0.4).expand_as(mean)
+    with torch.no_grad():
+        kl = mean_kl_from(anchor_mean, anchor_log_std, policy, obs)
+    s_old, s_new = torch.exp(log_std + 0.4), torch.exp(log_std)
+    by_hand = (torch.log(s_new / s_old) + (s_old**2 + 0.7**2) / (2 * s_new**2) - 0.5).sum()
+    # The difference in means is 0.7 for every state and dimension, so the mean over states is
+    # the per-state value.
+    assert float(kl) == pytest.approx(float(by_hand), rel=1e-12)
+    reverse = (torch.log(s_old / s_new) + (s_new**2 + 0.7**2) / (2 * s_old**2) - 0.5).sum()
+    assert float(kl) != pytest.approx(float(reverse), rel=1e-3)

@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -210,10 +211,16 @@ def test_numpy_snapshot_matches_torch_policy() -> None:
 
 
 def test_killed_worker_raises_clear_error() -> None:
+    before = os.environ.get("OPENBLAS_NUM_THREADS")
     sampler = Sampler("Hopper-v5", 2, 1, seed=0)
     try:
         sampler.sample(HOPPER, 20)
         victim = sampler._procs[1]
+        # Workers start single-threaded; the parent's own environment is left as it was.
+        assert os.environ.get("OPENBLAS_NUM_THREADS") == before
+        environ = Path(f"/proc/{victim.pid}/environ")
+        if environ.exists():
+            assert b"\0OPENBLAS_NUM_THREADS=1\0" in b"\0" + environ.read_bytes()
         assert victim.pid is not None
         os.kill(victim.pid, signal.SIGKILL)
         victim.join(timeout=10)
