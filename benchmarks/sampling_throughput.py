@@ -148,6 +148,7 @@ def main() -> None:
     args = parser.parse_args()
     out = args.out or Path(__file__).parent / "results" / f"sampling_{args.env}.json"
 
+    machine = machine_info()  # before measuring, so the load average is other processes'
     ours, batch = measure_sampler(args)
     physics = measure_physics(args, batch)
     ratio = ours["steps_per_s_median"] / physics["steps_per_s_median"]
@@ -161,7 +162,7 @@ def main() -> None:
     result = {
         "env": args.env, "steps": args.steps, "repeats": args.repeats, "workers": args.workers,
         "envs_per_worker": args.envs_per_worker, "seed": args.seed, "sampler": ours,
-        "physics": physics, "ratio": ratio, "machine": machine_info(),
+        "physics": physics, "ratio": ratio, "machine": machine,
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
     }
     out.parent.mkdir(parents=True, exist_ok=True)

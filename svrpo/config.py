@@ -104,7 +104,7 @@ class Config:
     # --- sampling and bookkeeping ---
     num_workers: int = 2
     """Sampling worker processes (0: sample in the main process)."""
-    envs_per_worker: int = 4
+    envs_per_worker: int = 8
     """Environments each worker steps in lockstep with one batched policy call."""
     torch_threads: int = 1
     """Torch threads for the update (results reproduce only at a fixed count)."""

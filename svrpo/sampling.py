@@ -142,7 +142,8 @@ class Sampler:
         ]
         chunks: list[WorkerChunk] = self._call_all("sample", [(snapshot, c) for c in per_worker])
         batch = _to_batch(chunks)
-        assert batch.num_steps == num_steps, (batch.num_steps, num_steps)
+        if batch.num_steps != num_steps:  # never hand a short batch to the learner
+            raise RuntimeError(f"workers returned {batch.num_steps} steps, expected {num_steps}")
         return batch
 
     def evaluate(self, snapshot: PolicySnapshot, episodes: int, seed: int) -> np.ndarray:

@@ -146,6 +146,9 @@ def test_worker_process_matches_in_process_and_state_restores() -> None:
             _assert_equal_batches(remote.sample(HOPPER, num_steps), local.sample(HOPPER, num_steps))
         state = remote.get_state()
         expected = remote.sample(HOPPER, 90)
+        # An exception inside a worker comes back with the worker's traceback.
+        with pytest.raises(RuntimeError, match=r"worker 0 raised(.|\n)*ValueError"):
+            remote.sample(CHEETAH, 10)  # 17-dim policy on 11-dim observations
     _assert_plain(state)
     # A sampler with another seed, fully overwritten by the state, continues bit-exactly.
     with Sampler("Hopper-v5", 0, 3, seed=999) as restored:
