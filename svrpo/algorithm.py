@@ -3,15 +3,23 @@
 Per outer iteration (Algorithm 1 with DESIGN.md's decisions): sample exactly N steps with the
 anchor policy, compute GAE advantages with the current baseline, standardise them over the
 batch, run the J inner steps (`update.update_policy`), refit the baseline, then log one row.
+
+Failures are loud, counted and reversible: a batch or an update with non-finite numbers leaves
+the parameters as they were (progress.csv column nonfinite_batches); a dead sampling worker is
+replaced by a fresh worker set restored to the last recorded sampler state and the call is
+repeated, so the batch is the one an undisturbed run would have drawn; whatever stops the loop,
+the last completed iteration is checkpointed.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import time
-from dataclasses import asdict, dataclass
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
@@ -19,14 +27,28 @@ import torch
 from svrpo import checkpoint
 from svrpo.advantages import generalized_advantages, standardize
 from svrpo.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction
-from svrpo.config import Config
+from svrpo.config import Config, ConfigError
 from svrpo.logging import RunLogger, truncate_progress
 from svrpo.normalization import RunningMeanStd
 from svrpo.objectives import SurrogateBatch, old_log_prob
 from svrpo.policy import GaussianMlpPolicy
 from svrpo.policy_snapshot import PolicySnapshot
-from svrpo.sampling import Batch, Sampler
+from svrpo.sampling import Batch, Sampler, WorkerDiedError
 from svrpo.update import UpdateStats, update_policy
+
+MAX_SAMPLER_RESTARTS = 3
+"""Fresh worker sets tried for one sampler call whose workers keep dying, before the run stops."""
+
+# Fields that fix the shapes of the saved tensors or the sampler layout: a checkpoint written
+# with other values cannot be loaded into this run. (total_steps may change: that extends a run.)
+_MUST_MATCH = ("env_id", "hidden_sizes", "baseline", "baseline_hidden_sizes", "normalize_observations",
+               "num_workers", "envs_per_worker")
+
+_T = TypeVar("_T")
+
+
+class TrainingError(RuntimeError):
+    """The run cannot go on (e.g. sampling workers keep dying); its last iteration is checkpointed."""
 
 
 @dataclass
@@ -42,10 +64,20 @@ class Run:
     """Mini-batches and Fisher subsets."""
     probe_generator: torch.Generator
     """Variance-probe mini-batches only (so the probe does not change training)."""
+    baseline_generator: torch.Generator | None = None
+    """Mini-batch order of the `mlp` baseline's fit (None for `linear`)."""
+    sampler_state: dict[str, Any] = field(default_factory=dict)
+    """Sampler.get_state() after the last completed sample(): where restarted workers resume."""
     iteration: int = 0
     env_steps: int = 0
     wall_time: float = 0.0
     nonfinite_batches: int = 0
+    """Batches whose update was refused: non-finite data, or an update that made parameters
+    non-finite (then undone)."""
+    sampler_restarts: int = 0
+    """Worker sets replaced after a worker died (this process only; not checkpointed)."""
+    notes: list[str] = field(default_factory=list)
+    """Warnings raised during the current iteration; train() prints and clears them."""
 
 
 def _seeded(seed: int) -> torch.Generator:
@@ -54,26 +86,33 @@ def _seeded(seed: int) -> torch.Generator:
     return generator
 
 
+def make_sampler(config: Config) -> Sampler:
+    """The run's Sampler in its initial state (also used to replace one whose worker died)."""
+    return Sampler(
+        config.env_id, config.num_workers, config.envs_per_worker, config.seed, config.max_episode_steps
+    )
+
+
 def build_run(config: Config) -> Run:
     """Compose the parts of a run from its config (the one place where they are chosen)."""
     torch.set_num_threads(config.torch_threads)
-    sampler = Sampler(
-        config.env_id, config.num_workers, config.envs_per_worker, config.seed, config.max_episode_steps
-    )
+    sampler = make_sampler(config)
     info = sampler.info
     torch.manual_seed(config.seed)
     policy = GaussianMlpPolicy(info.obs_dim, info.act_dim, config.hidden_sizes, config.init_log_std)
     baseline: Baseline
+    baseline_generator = None
     if config.baseline == "linear":
         baseline = LinearFeatureBaseline(info.obs_dim)
     else:
+        baseline_generator = _seeded(config.seed + 2)
         baseline = MlpValueFunction(
             info.obs_dim,
             config.baseline_hidden_sizes,
             config.baseline_lr,
             config.baseline_epochs,
             config.baseline_minibatch_size,
-            _seeded(config.seed + 2),
+            baseline_generator,
         )
     normalizer = RunningMeanStd(info.obs_dim) if config.normalize_observations else None
     return Run(
@@ -84,6 +123,8 @@ def build_run(config: Config) -> Run:
         sampler=sampler,
         generator=_seeded(config.seed + 1),
         probe_generator=_seeded(config.seed + 3),
+        baseline_generator=baseline_generator,
+        sampler_state=sampler.get_state(),
     )
 
 
@@ -116,28 +157,126 @@ def surrogate_batch(run: Run, batch: Batch) -> tuple[SurrogateBatch, torch.Tenso
     return data, targets, inputs
 
 
-def _finite(*tensors: torch.Tensor) -> bool:
-    return all(bool(torch.isfinite(t).all()) for t in tensors)
+def _nonfinite(named: dict[str, torch.Tensor]) -> list[str]:
+    """Names of the tensors that hold a NaN or an infinity."""
+    return [name for name, tensor in named.items() if not bool(torch.isfinite(tensor).all())]
+
+
+def _learned_state_views(run: Run) -> dict[str, Any]:
+    """State dicts of everything an update changes: policy, baseline (with its optimizer), normaliser.
+
+    These share storage with the live parameters; _learned_state copies them.
+    """
+    return {
+        "policy": run.policy.state_dict(),
+        "baseline": run.baseline.state_dict(),
+        "normalizer": None if run.normalizer is None else run.normalizer.state_dict(),
+    }
+
+
+def _learned_state(run: Run) -> dict[str, Any]:
+    """Deep copies of _learned_state_views: unaffected by later in-place updates."""
+    return copy.deepcopy(_learned_state_views(run))
+
+
+def _load_learned_state(run: Run, saved: dict[str, Any]) -> None:
+    run.policy.load_state_dict(saved["policy"])
+    run.baseline.load_state_dict(saved["baseline"])
+    if run.normalizer is not None:
+        run.normalizer.load_state_dict(saved["normalizer"])
+
+
+def _nonfinite_learned_state(run: Run) -> list[str]:
+    """Which of policy, baseline and normaliser hold a non-finite number (optimizer state included)."""
+    def tensors(value: Any) -> list[torch.Tensor]:
+        if isinstance(value, torch.Tensor):
+            return [value] if value.is_floating_point() else []
+        if isinstance(value, dict):
+            return [t for item in value.values() for t in tensors(item)]
+        if isinstance(value, (list, tuple)):
+            return [t for item in value for t in tensors(item)]
+        return []
+
+    parts = {name: tensors(state) for name, state in _learned_state_views(run).items()}
+    return [name for name, found in parts.items() if not all(bool(torch.isfinite(t).all()) for t in found)]
+
+
+def _with_workers(run: Run, call: Callable[[Sampler], _T], iteration: int) -> _T:
+    """call(run.sampler); when a worker has died, restart the workers and repeat the call.
+
+    The fresh workers are set to run.sampler_state, which is the state before the failed call
+    had any effect (sampling records its new state only once the whole batch is in hand), so
+    the repeated call returns exactly what the undisturbed one would have: never a short batch,
+    nor one mixing old and new workers. After MAX_SAMPLER_RESTARTS failed restarts the run stops
+    with TrainingError. An error *raised* inside a worker is not retried: it would recur.
+    `iteration` only labels the warnings.
+    """
+    failure = ""
+    for attempt in range(MAX_SAMPLER_RESTARTS + 1):
+        try:
+            if attempt > 0:
+                run.sampler.close()
+                run.sampler = make_sampler(run.config)
+                run.sampler.set_state(run.sampler_state)
+                run.sampler_restarts += 1
+            return call(run.sampler)
+        except WorkerDiedError as error:
+            failure = str(error).split(";")[0]  # the rest is advice meant for direct Sampler users
+            if attempt < MAX_SAMPLER_RESTARTS:
+                run.notes.append(f"warning: iteration {iteration}: {failure}; restarting the sampling "
+                                 "workers from the last recorded state and repeating the call")
+    run.sampler.close()
+    raise TrainingError(
+        f"sampling workers died {MAX_SAMPLER_RESTARTS + 1} times in a row in iteration {iteration}; "
+        f"giving up (last: {failure})"
+    )
+
+
+def _sample(run: Run) -> Batch:
+    """Exactly N steps with the current policy; records the sampler state that follows them."""
+    snapshot = snapshot_of(run)
+
+    def sample_and_record(sampler: Sampler) -> tuple[Batch, dict[str, Any]]:
+        batch = sampler.sample(snapshot, run.config.batch_size)
+        return batch, sampler.get_state()
+
+    batch, run.sampler_state = _with_workers(run, sample_and_record, run.iteration + 1)
+    return batch
 
 
 def run_iteration(run: Run) -> dict[str, Any]:
-    """One outer iteration; returns the progress.csv row (the caller logs it)."""
+    """One outer iteration; returns the progress.csv row (the caller logs it, and run.notes)."""
     config = run.config
     started = time.perf_counter()
-    batch = run.sampler.sample(snapshot_of(run), config.batch_size)
+    batch = _sample(run)
     sampled = time.perf_counter()
 
     data, targets, inputs = surrogate_batch(run, batch)
     stats: UpdateStats | None = None
     explained = math.nan
-    if _finite(batch.observations, batch.rewards, data.advantages, targets):
+    bad_data = _nonfinite({
+        "observations": batch.observations, "actions": batch.actions, "rewards": batch.rewards,
+        "advantages": data.advantages, "value targets": targets,
+    })
+    if bad_data:
+        # Non-finite data never reaches the parameters: keep the last good policy, count it.
+        run.nonfinite_batches += 1
+        run.notes.append(f"warning: iteration {run.iteration + 1}: non-finite {', '.join(bad_data)} "
+                         "in the batch; update skipped, parameters kept")
+    else:
+        before = _learned_state(run)
         stats = update_policy(run.policy, data, config, run.generator, run.probe_generator)
         explained = run.baseline.fit(inputs, batch.timesteps, targets)  # refit after: rllab order
         if run.normalizer is not None:
             run.normalizer.update(batch.observations)
-    else:
-        # Non-finite data never reaches the parameters: keep the last good policy, count it.
-        run.nonfinite_batches += 1
+        # update_policy guards its own steps; this catches whatever slips through (and the
+        # baseline's and normaliser's updates), undoing the whole update rather than patching it.
+        broken = _nonfinite_learned_state(run)
+        if broken:
+            _load_learned_state(run, before)
+            run.nonfinite_batches += 1
+            run.notes.append(f"warning: iteration {run.iteration + 1}: the update made the "
+                             f"{', '.join(broken)} non-finite; restored the parameters from before it")
     updated = time.perf_counter()
 
     run.iteration += 1
@@ -146,18 +285,21 @@ def run_iteration(run: Run) -> dict[str, Any]:
     last = run.iteration == config.iterations
     if config.eval_every and (run.iteration % config.eval_every == 0 or last):
         eval_seed = config.seed + 1_000_003  # the same start states at every evaluation
-        eval_return = float(np.mean(run.sampler.evaluate(snapshot_of(run), config.eval_episodes, eval_seed)))
+        snapshot = snapshot_of(run)
+        eval_return = float(np.mean(
+            _with_workers(run, lambda s: s.evaluate(snapshot, config.eval_episodes, eval_seed), run.iteration)
+        ))
     run.wall_time += time.perf_counter() - started
 
-    returns = batch.episode_returns
+    episode_returns = batch.episode_returns
     row: dict[str, Any] = {
         "iteration": run.iteration,
         "env_steps": run.env_steps,
         "wall_time": run.wall_time,
-        "average_return": float(returns.mean()) if returns.size else math.nan,
+        "average_return": float(episode_returns.mean()) if episode_returns.size else math.nan,
         "eval_return": eval_return,
-        "episodes": int(returns.size),
-        "episode_length": float(batch.episode_lengths.mean()) if returns.size else math.nan,
+        "episodes": int(episode_returns.size),
+        "episode_length": float(batch.episode_lengths.mean()) if episode_returns.size else math.nan,
         "entropy": float(run.policy.entropy().detach()),
         "action_std": float(run.policy.log_std.detach().exp().mean()),
         "baseline_explained_variance": explained,
@@ -183,79 +325,134 @@ def snapshot_of(run: Run) -> PolicySnapshot:
 
 
 def capture_state(run: Run) -> dict[str, Any]:
-    """Everything the next iteration needs, as tensors and plain values (no pickled objects)."""
+    """Everything the next iteration needs, as tensors and plain values (no pickled objects).
+
+    Copies, not views: the state of iteration k must not change while iteration k + 1 updates
+    the parameters in place (Ctrl-C during that update saves this state).
+    """
     return {
-        "format": 1,
+        "format": checkpoint.FORMAT,
         "config": run.config.to_json(),
         "iteration": run.iteration,
         "env_steps": run.env_steps,
         "wall_time": run.wall_time,
         "nonfinite_batches": run.nonfinite_batches,
-        "policy": run.policy.state_dict(),
-        "baseline": run.baseline.state_dict(),
-        "normalizer": None if run.normalizer is None else run.normalizer.state_dict(),
+        "progress_rows": run.iteration,  # progress.csv holds one row per completed iteration
+        **_learned_state(run),
         "generator": run.generator.get_state(),
         "probe_generator": run.probe_generator.get_state(),
-        "sampler": run.sampler.get_state(),
+        "baseline_generator": None if run.baseline_generator is None else run.baseline_generator.get_state(),
+        # Nothing in the loop draws from the global generators today; saved so that nothing
+        # added later can silently break resume.
+        "torch_rng": torch.get_rng_state(),
+        "numpy_rng": np.random.get_state(),
+        "sampler": copy.deepcopy(run.sampler_state),
     }
 
 
 def restore_state(run: Run, state: dict[str, Any], source: Path) -> None:
     """Load capture_state output into a freshly built run; CheckpointError if it does not fit."""
-    saved = Config.from_json(state["config"])
-    for name in ("env_id", "hidden_sizes", "baseline", "normalize_observations", "num_workers",
-                 "envs_per_worker"):
+    try:
+        saved = Config.from_json(state["config"])
+    except (ConfigError, ValueError, TypeError, KeyError) as error:
+        raise checkpoint.CheckpointError(
+            f"{source} holds no readable config: {checkpoint.one_line(error)}"
+        ) from None
+    for name in _MUST_MATCH:
         if getattr(saved, name) != getattr(run.config, name):
             raise checkpoint.CheckpointError(
                 f"{source} was written with {name}={getattr(saved, name)!r}, "
                 f"this run has {name}={getattr(run.config, name)!r}"
             )
     try:
-        run.policy.load_state_dict(state["policy"])
-        run.baseline.load_state_dict(state["baseline"])
-        if run.normalizer is not None:
-            run.normalizer.load_state_dict(state["normalizer"])
+        _load_learned_state(run, state)
         run.generator.set_state(state["generator"])
         run.probe_generator.set_state(state["probe_generator"])
+        if run.baseline_generator is not None:
+            run.baseline_generator.set_state(state["baseline_generator"])
+        torch.set_rng_state(state["torch_rng"])
+        np.random.set_state(state["numpy_rng"])
         run.sampler.set_state(state["sampler"])
-    except (RuntimeError, ValueError, KeyError, TypeError) as error:
-        raise checkpoint.CheckpointError(f"{source} does not fit this run: {error}") from None
-    run.iteration = int(state["iteration"])
-    run.env_steps = int(state["env_steps"])
-    run.wall_time = float(state["wall_time"])
-    run.nonfinite_batches = int(state["nonfinite_batches"])
+        run.sampler_state = state["sampler"]
+        run.iteration = int(state["iteration"])
+        run.env_steps = int(state["env_steps"])
+        run.wall_time = float(state["wall_time"])
+        run.nonfinite_batches = int(state["nonfinite_batches"])
+    except (RuntimeError, ValueError, KeyError, TypeError, AttributeError, AssertionError) as error:
+        raise checkpoint.CheckpointError(
+            f"{source} does not fit this run: {type(error).__name__}: {checkpoint.one_line(error)}"
+        ) from None
+
+
+def _resume(run: Run, run_dir: Path) -> list[str]:
+    """Restore the newest readable checkpoint and cut progress.csv back to it; notes to print."""
+    directory = run_dir / "checkpoints"
+    checkpoint.remove_stale_temporaries(directory)
+    if not checkpoint.list_checkpoints(directory):
+        return ["no checkpoint to resume from: starting at iteration 0"]
+    state, path, warnings = checkpoint.load_latest(directory)
+    restore_state(run, state, path)
+    notes = [f"warning: {warning}" for warning in warnings]
+    notes.append(f"resuming from {path} (iteration {run.iteration})")
+    return notes
 
 
 def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bool = True) -> Run:
-    """Train to config.total_steps, writing config.json, progress.csv, TensorBoard, checkpoints."""
+    """Train to config.total_steps, writing config.json, progress.csv, TensorBoard, checkpoints.
+
+    resume=True continues from the newest readable checkpoint in run_dir (an older one if the
+    newest is damaged); progress.csv loses the rows logged after it, which are redone, so the
+    file ends exactly as in an uninterrupted run. Whatever stops the loop (Ctrl-C, dying
+    workers, a bug), the last completed iteration is checkpointed before the exception leaves.
+    """
     run_dir.mkdir(parents=True, exist_ok=True)
+    if not resume:  # first, so that a run killed while starting is still a resumable directory
+        (run_dir / "config.json").write_text(config.to_json() + "\n")
     checkpoints = run_dir / "checkpoints"
+    progress = run_dir / "progress.csv"
     run = build_run(config)
     try:
-        if resume and checkpoint.list_checkpoints(checkpoints):
-            state, path, warnings = checkpoint.load_latest(checkpoints)
-            for warning in warnings:
-                print(f"warning: {warning}")
-            restore_state(run, state, path)
-        truncate_progress(run_dir / "progress.csv", run.iteration + 1)
+        notes = _resume(run, run_dir) if resume else []
+        try:
+            kept = truncate_progress(progress, run.iteration + 1)
+        except ValueError as error:
+            raise checkpoint.CheckpointError(str(error)) from None
+        if kept != list(range(1, run.iteration + 1)):
+            notes.append(f"warning: {progress} should hold the rows of iterations 1..{run.iteration} "
+                         f"(checkpoint), it holds {len(kept)} rows; continuing")
         (run_dir / "config.json").write_text(config.to_json() + "\n")
         logger = RunLogger(run_dir, config.iterations * config.batch_size, run.env_steps, show_progress)
+        for note in notes:
+            logger.message(note)
         last_state = capture_state(run)
+        saved_iteration = run.iteration if resume else -1
         try:
             while run.iteration < config.iterations:
                 row = run_iteration(run)
                 logger.log(row)
-                if row["nonfinite_batches"] > last_state["nonfinite_batches"]:
-                    logger.message(f"warning: iteration {run.iteration}: non-finite batch, update skipped")
+                for note in run.notes:
+                    logger.message(note)
+                run.notes.clear()
                 last_state = capture_state(run)
                 if run.iteration % config.checkpoint_every == 0 or run.iteration == config.iterations:
                     checkpoint.save_atomic(last_state, checkpoint.checkpoint_path(checkpoints, run.iteration))
                     checkpoint.prune(checkpoints)
-        except KeyboardInterrupt:
-            # The interrupted iteration may be half done: save the last completed one.
-            final = checkpoint.checkpoint_path(checkpoints, last_state["iteration"])
-            checkpoint.save_atomic(last_state, final)
-            logger.message(f"interrupted: checkpoint of iteration {last_state['iteration']} written")
+                    saved_iteration = run.iteration
+        except BaseException as error:
+            for note in run.notes:
+                logger.message(note)
+            # The interrupted iteration may be half done; the last completed one is consistent.
+            if last_state["iteration"] not in (0, saved_iteration):
+                try:
+                    path = checkpoint.checkpoint_path(checkpoints, last_state["iteration"])
+                    checkpoint.save_atomic(last_state, path)
+                    checkpoint.prune(checkpoints)
+                except Exception as save_error:  # keep the original error; say the save failed
+                    logger.message(f"could not write the final checkpoint: {save_error}")
+                    raise error from None
+            stopped = "interrupted" if isinstance(error, KeyboardInterrupt) else "stopped"
+            logger.message(f"{stopped}: the checkpoint of iteration {last_state['iteration']} "
+                           f"is in {checkpoints}")
             raise
         finally:
             logger.close()

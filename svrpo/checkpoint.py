@@ -3,12 +3,15 @@
 A checkpoint is a dict of tensors and plain Python values written with torch.save to a
 temporary file, fsynced, then renamed over the target: a crash leaves either the old or the
 new file, never half of one. Loading uses torch.load(weights_only=True), which refuses any
-pickled class or function. NumPy arrays are stored as tensors for the same reason.
+pickled class or function (without running it). NumPy arrays are stored as tensors for the
+same reason. A file that cannot be read is reported by name and load_latest falls back to the
+next older checkpoint, so one damaged file costs at most `checkpoint_every` iterations.
 """
 
 from __future__ import annotations
 
 import os
+import pickle
 import re
 from pathlib import Path
 from typing import Any
@@ -19,6 +22,12 @@ import torch
 
 class CheckpointError(RuntimeError):
     """A checkpoint that cannot be read or does not fit the run, naming the file."""
+
+
+FORMAT = 1
+"""Version of the checkpoint layout written by algorithm.capture_state."""
+
+_REQUIRED_KEYS = {"format", "config", "iteration"}
 
 
 def to_storable(value: Any) -> Any:
@@ -34,11 +43,18 @@ def to_storable(value: Any) -> Any:
     return value
 
 
+# Only numeric and boolean arrays are ever stored; anything else (e.g. dtype "object") is refused.
+_ARRAY_KINDS = "biuf"
+
+
 def from_storable(value: Any) -> Any:
-    """Inverse of to_storable."""
+    """Inverse of to_storable; ValueError for an array entry that to_storable cannot have written."""
     if isinstance(value, dict):
         if "__ndarray__" in value:
-            return value["__ndarray__"].numpy().astype(value["dtype"])
+            tensor, dtype = value["__ndarray__"], np.dtype(value.get("dtype"))
+            if not isinstance(tensor, torch.Tensor) or dtype.kind not in _ARRAY_KINDS:
+                raise ValueError(f"malformed array entry (dtype {dtype})")
+            return tensor.numpy().astype(dtype)
         return {key: from_storable(item) for key, item in value.items()}
     if isinstance(value, (list, tuple)):
         return type(value)(from_storable(item) for item in value)
@@ -62,14 +78,62 @@ def save_atomic(state: dict[str, Any], path: Path) -> None:
 
 
 def load(path: Path) -> dict[str, Any]:
-    """Read a checkpoint written by save_atomic; CheckpointError naming the file if unreadable."""
+    """Read a checkpoint written by save_atomic; CheckpointError naming the file if unreadable.
+
+    Never executes code from the file: torch's weights-only unpickler rejects every global that
+    is not a tensor type or a plain container before it is called.
+    """
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # torch raises several types for truncated or foreign files
-        raise CheckpointError(f"cannot read checkpoint {path}: {type(error).__name__}: {error}") from None
-    if not isinstance(state, dict) or "iteration" not in state:
-        raise CheckpointError(f"{path} is not an svrpo checkpoint")
-    return from_storable(state)
+    except pickle.UnpicklingError as error:
+        reason = _refusal_reason(error)
+        what = (
+            "refused: it holds pickled Python objects other than tensors and plain values, which "
+            "svrpo never writes" if "GLOBAL" in reason
+            else "not a file svrpo wrote (truncated, corrupted or foreign)"
+        )
+        raise CheckpointError(
+            f"cannot load checkpoint {path}: {what} ({reason}); nothing in it was run"
+        ) from None
+    except Exception as error:  # a truncated zip raises RuntimeError, an empty file EOFError, ...
+        raise CheckpointError(
+            f"cannot load checkpoint {path}: truncated or corrupted? ({type(error).__name__}: "
+            f"{_first_line(error)})"
+        ) from None
+    if not isinstance(state, dict) or not state.keys() >= _REQUIRED_KEYS:
+        raise CheckpointError(f"{path} is not an svrpo checkpoint (missing keys)")
+    if state["format"] != FORMAT:
+        raise CheckpointError(f"{path} has checkpoint format {state['format']!r}, this svrpo reads {FORMAT}")
+    try:
+        return dict(from_storable(state))
+    except (ValueError, TypeError, AttributeError) as error:
+        raise CheckpointError(f"{path} is not an svrpo checkpoint: {error}") from None
+
+
+def one_line(error: BaseException) -> str:
+    """str(error) with all whitespace runs (newlines included) collapsed: the CLI prints one line."""
+    return " ".join(str(error).split())
+
+
+def _first_line(error: BaseException) -> str:
+    lines = str(error).strip().splitlines()
+    return lines[0] if lines else ""
+
+
+def _refusal_reason(error: pickle.UnpicklingError) -> str:
+    """The line of torch's weights-only message that names the rejected global or opcode.
+
+    A rejected GLOBAL is a pickled class or function; an unsupported opcode is what random bytes
+    (or a pickle protocol torch's safe loader does not read) look like.
+
+    torch's own text also advises re-running with weights_only=False, which is exactly what must
+    not be done with an untrusted file, so only the diagnostic line is kept.
+    """
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    for line in lines:
+        if "GLOBAL" in line or "Unsupported" in line or "unsupported" in line:
+            return line.removeprefix("WeightsUnpickler error: ").split(". Please")[0].rstrip(".")
+    return lines[-1] if lines else type(error).__name__
 
 
 _NAME = re.compile(r"^iter_(\d+)\.pt$")
@@ -78,6 +142,13 @@ _NAME = re.compile(r"^iter_(\d+)\.pt$")
 def checkpoint_path(directory: Path, iteration: int) -> Path:
     """checkpoints/iter_000123.pt: sorted by name = sorted by iteration."""
     return directory / f"iter_{iteration:06d}.pt"
+
+
+def remove_stale_temporaries(directory: Path) -> None:
+    """Delete *.pt.tmp files left by a process killed while saving (never a complete checkpoint)."""
+    if directory.is_dir():
+        for path in directory.glob("iter_*.pt.tmp"):
+            path.unlink(missing_ok=True)
 
 
 def list_checkpoints(directory: Path) -> list[Path]:

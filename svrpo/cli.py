@@ -1,4 +1,7 @@
-"""`svrpo train | plot`: the command-line front end. Bad input: one line on stderr, exit code 2."""
+"""`svrpo train | sweep | plot | evaluate`: the command-line front end.
+
+Bad input: one line on stderr, exit code 2.
+"""
 
 from __future__ import annotations
 
@@ -13,6 +16,8 @@ from typing import Any
 from svrpo.checkpoint import CheckpointError
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, make_preset
 from svrpo.envs import EnvError, env_info
+from svrpo.evaluation import EvaluationError
+from svrpo.experiments.specs import SpecError
 
 
 class UsageError(ValueError):
@@ -58,10 +63,18 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
         config_path = run_dir / "config.json"
         if not config_path.is_file():
             raise UsageError(f"--resume: {run_dir} holds no config.json (not a run directory)")
-        config = Config.from_json(config_path.read_text())
+        try:
+            config = Config.from_json(config_path.read_text())
+        except ConfigError:
+            raise
+        except (OSError, ValueError, TypeError) as error:  # e.g. a config.json cut short by a crash
+            raise UsageError(f"--resume: cannot read {config_path}: {error}") from None
         if extra:
             raise UsageError("--resume continues a run with its saved config.json; drop the overrides")
-        preset = json.loads((run_dir / "run.json").read_text()).get("preset", "custom")
+        try:
+            preset = json.loads((run_dir / "run.json").read_text()).get("preset", "custom")
+        except (OSError, ValueError, AttributeError):
+            preset = "custom"  # run.json is only a record of how the run was started
     else:
         config = _build_config(args, extra)
         preset = args.preset
@@ -81,7 +94,7 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
                 "python": platform.python_version()}
         (run_dir / "run.json").write_text(json.dumps(meta, indent=2) + "\n")
 
-    from svrpo.algorithm import train
+    from svrpo.algorithm import TrainingError, train
 
     print(f"training {preset} on {config.env_id}: {config.iterations} iterations x "
           f"N={config.batch_size} steps -> {run_dir}", file=sys.stderr)
@@ -90,31 +103,103 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
     except KeyboardInterrupt:
         print(f"interrupted; resume with: svrpo train --resume {run_dir}", file=sys.stderr)
         return 130
+    except TrainingError as error:
+        print(f"svrpo train: error: {error}; resume with: svrpo train --resume {run_dir}", file=sys.stderr)
+        return 1
     print(f"done: {run.env_steps} steps in {run.wall_time:.0f} s. Results in {run_dir}/ "
           f"(progress.csv, tensorboard/, checkpoints/); plot with: svrpo plot {run_dir}")
     return 0
 
 
 def _plot(args: argparse.Namespace, extra: list[str]) -> int:
+    """Run directories given by name: one learning-curve PNG, as before. Directories above runs
+    (a sweep root): a report per experiment (svrpo.experiments.report) for runs made by
+    `svrpo sweep`, and the learning-curve PNG for any other runs found there."""
     if extra:
         raise UsageError(f"unexpected arguments {' '.join(extra)}")
-    from svrpo.plotting import plot_runs
+    from svrpo.experiments.report import default_report_dir, group_by_experiment, write_report
+    from svrpo.plotting import find_run_dirs, plot_runs
 
     paths = [Path(p) for p in args.run_dirs]
     for path in paths:
         if not path.exists():
             raise UsageError(f"{path} does not exist")
-    if args.out:
-        out = Path(args.out)
-    elif len(paths) == 1 and paths[0].is_dir():
-        out = paths[0] / "learning_curve.png"
+    named = [p for p in paths if (p / "progress.csv").is_file()]
+    roots = [p for p in paths if p not in named]
+    experiments, plain = group_by_experiment(find_run_dirs(roots)) if roots else ({}, [])
+    plain = named + plain
+    if not plain and not experiments:
+        raise UsageError(f"no run directory (with progress.csv) under {', '.join(map(str, paths))}")
+    for (experiment, scale), run_dirs in sorted(experiments.items()):
+        out_dir = Path(args.report_dir) / f"{experiment}-{scale}" if args.report_dir else \
+            default_report_dir(run_dirs)
+        for written in write_report(experiment, scale, run_dirs, out_dir, smoothing=args.smooth):
+            print(f"wrote {written}")
+    if plain:
+        if args.out:
+            out = Path(args.out)
+        elif len(paths) == 1 and paths[0].is_dir():
+            out = paths[0] / "learning_curve.png"
+        else:
+            out = Path("learning_curves.png")
+        print(f"wrote {plot_runs(plain, out, metric=args.metric, smoothing=args.smooth)}")
+    return 0
+
+
+def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
+    from svrpo.experiments import LocalBackend, load_spec, run_sweep
+
+    overrides: dict[str, Any] = dict(_parse_overrides(extra))
+    if args.steps is not None:
+        overrides["total_steps"] = args.steps
+    if args.seeds is not None and args.seeds < 1:
+        raise UsageError(f"--seeds must be >= 1; got {args.seeds}")
+    spec = load_spec(args.spec).with_changes(args.scale, args.seeds, overrides)
+    if args.jobs == "auto":
+        backend = LocalBackend()
+    elif args.jobs.isdigit() and int(args.jobs) >= 1:
+        backend = LocalBackend(max_parallel=int(args.jobs))
     else:
-        out = Path("learning_curves.png")
+        raise UsageError(f"--jobs must be auto or a positive integer; got {args.jobs!r}")
+    import signal
+
+    from svrpo.experiments.runner import raise_keyboard_interrupt
+
+    signal.signal(signal.SIGTERM, raise_keyboard_interrupt)  # stop like Ctrl-C: runs checkpoint
     try:
-        written = plot_runs(paths, out, metric=args.metric, smoothing=args.smooth)
-    except FileNotFoundError as error:
-        raise UsageError(str(error)) from None
-    print(f"wrote {written}")
+        summary = run_sweep(spec, Path(args.root), backend, dry_run=args.dry_run)
+    except KeyboardInterrupt:
+        print("interrupted: running runs checkpointed; run the same command again to resume",
+              file=sys.stderr)
+        return 130
+    if not args.dry_run:
+        print(summary.line())
+        print(f"plot with: svrpo plot {Path(args.root) / spec.directory}")
+    return 1 if summary.failed else 0
+
+
+def _evaluate(args: argparse.Namespace, extra: list[str]) -> int:
+    if extra:
+        raise UsageError(f"unexpected arguments {' '.join(extra)}")
+    from svrpo.evaluation import evaluate, record_video
+
+    if args.episodes < 1:
+        raise UsageError(f"--episodes must be >= 1; got {args.episodes}")
+    width, _, height = args.video_size.partition("x")
+    if not (width.isdigit() and height.isdigit()):
+        raise UsageError(f"--video-size must be WIDTHxHEIGHT, e.g. 480x480; got {args.video_size!r}")
+    result = evaluate(Path(args.path), args.episodes, args.seed)
+    policy = result.policy
+    print(f"{policy.config.env_id}, iteration {policy.iteration} ({policy.env_steps} steps), "
+          f"{policy.checkpoint}: return {result.mean:.2f} +- {result.std:.2f} (mean +- std over "
+          f"{args.episodes} deterministic episode{'s' if args.episodes > 1 else ''}, seeds "
+          f"{args.seed}..{args.seed + args.episodes - 1})")
+    print("returns: " + " ".join(f"{value:.2f}" for value in result.returns))
+    if args.video:
+        video = record_video(Path(args.path), Path(args.video), args.video_episodes, args.seed,
+                             (int(width), int(height)))
+        print(f"wrote {video.path}: {video.frames} frames at {video.fps:.1f} fps "
+              f"({args.video_episodes} episode(s), MUJOCO_GL={video.backend})")
     return 0
 
 
@@ -140,12 +225,49 @@ def make_parser() -> argparse.ArgumentParser:
     train.add_argument("--overwrite", action="store_true", help="replace an existing run directory")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.set_defaults(handler=_train)
-    plot = commands.add_parser("plot", help="plot return vs environment steps from run directories")
-    plot.add_argument("run_dirs", nargs="+", metavar="RUN_DIR")
-    plot.add_argument("--out", default=None, help="PNG path")
+    plot = commands.add_parser(
+        "plot",
+        help="plot run directories, or write per-experiment reports for a sweep root",
+        description="RUN_DIR...: return vs environment steps -> one PNG. A directory above runs "
+        "(e.g. a sweep root): for each experiment, returns.png, variance_ratio.png, table.md and "
+        "table.csv in ROOT/EXPERIMENT-SCALE/ (or --report-dir).",
+    )
+    plot.add_argument("run_dirs", nargs="+", metavar="RUN_DIR_OR_ROOT")
+    plot.add_argument("--out", default=None, help="PNG path of the learning curve of plain runs")
+    plot.add_argument("--report-dir", default=None, help="write experiment reports here instead")
     plot.add_argument("--metric", default="average_return", help="progress.csv column")
     plot.add_argument("--smooth", type=int, default=1, help="trailing-mean window in iterations")
     plot.set_defaults(handler=_plot)
+    sweep = commands.add_parser(
+        "sweep",
+        allow_abbrev=False,
+        help="train a grid of tasks x presets x seeds (figure1, figure2, figure3 or a YAML file)",
+        description="Train every run of an experiment into ROOT/NAME-SCALE/ENV/PRESET/seedK/. "
+        "Finished runs are skipped, unfinished ones resume from their last checkpoint. Any config "
+        "field can be set for every run as --field value.",
+    )
+    sweep.add_argument("spec", metavar="SPEC", help="figure1 | figure2 | figure3 | FILE.yaml")
+    sweep.add_argument("--scale", default=None, choices=SCALES, help="default: the spec's (laptop)")
+    sweep.add_argument("--seeds", type=int, default=None, help="seeds 0..N-1 (default: the spec's, 5)")
+    sweep.add_argument("--root", default="runs", help="sweep root directory (default runs)")
+    sweep.add_argument("--jobs", default="auto",
+                       help="runs at a time: auto (as many as their sampling workers fit in the cores) or N")
+    sweep.add_argument("--steps", type=int, default=None, help="total environment steps per run")
+    sweep.add_argument("--dry-run", action="store_true", help="list the runs and their status only")
+    sweep.set_defaults(handler=_sweep)
+    evaluate = commands.add_parser(
+        "evaluate",
+        help="deterministic (mean-action) returns of a saved policy, optionally an MP4",
+        description="Evaluate the latest checkpoint of RUN_DIR (or a checkpoint .pt file) with the "
+        "mean action; episode k starts from seed SEED+k.",
+    )
+    evaluate.add_argument("path", metavar="RUN_DIR_OR_CHECKPOINT")
+    evaluate.add_argument("--episodes", type=int, default=10)
+    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--video", default=None, metavar="OUT.mp4", help="also render episodes to MP4")
+    evaluate.add_argument("--video-episodes", type=int, default=1, help="episodes in the video")
+    evaluate.add_argument("--video-size", default="480x480", help="WIDTHxHEIGHT in pixels")
+    evaluate.set_defaults(handler=_evaluate)
     return parser
 
 
@@ -154,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     args, extra = parser.parse_known_args(argv)
     try:
         return int(args.handler(args, extra))
-    except (UsageError, ConfigError, EnvError, CheckpointError) as error:
+    except (UsageError, ConfigError, EnvError, CheckpointError, SpecError, EvaluationError) as error:
         print(f"svrpo {args.command}: error: {error}", file=sys.stderr)
         return 2
 

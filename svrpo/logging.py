@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -14,23 +15,43 @@ from tqdm import tqdm
 WALL_CLOCK_COLUMNS = ("wall_time", "time_sampling", "time_update", "steps_per_second")
 
 
-def truncate_progress(path: Path, keep_iterations: int) -> None:
-    """Keep the header and the rows with iteration < keep_iterations (for resume)."""
+def truncate_progress(path: Path, keep_iterations: int) -> list[int]:
+    """Keep the header and the rows with iteration < keep_iterations (for resume); their iterations.
+
+    A process killed while appending leaves at most one half-written last row, and rows logged
+    after the checkpoint it resumes from: both are dropped (those iterations are redone). When
+    no row is kept the file is removed, so that a header cut short by a crash is written afresh.
+    The rewrite goes through a fsynced temporary file and a rename, like a checkpoint.
+    """
     if not path.exists():
-        return
+        return []
+    if keep_iterations <= 1:
+        path.unlink()
+        return []
     with open(path, newline="") as handle:
         rows = list(csv.reader(handle))
-    if not rows:
-        return
+    if not rows or "iteration" not in rows[0]:
+        raise ValueError(f"{path} has no header row with an 'iteration' column")
     header, body = rows[0], rows[1:]
     column = header.index("iteration")
-    kept = [row for row in body if len(row) == len(header) and int(row[column]) < keep_iterations]
+    kept = [row for row in body if len(row) == len(header) and _iteration(row[column]) < keep_iterations]
     temporary = path.with_name(path.name + ".tmp")
     with open(temporary, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(header)
         writer.writerows(kept)
+        handle.flush()
+        os.fsync(handle.fileno())
     temporary.replace(path)
+    return [int(row[column]) for row in kept]
+
+
+def _iteration(cell: str) -> int | float:
+    """The iteration number of a progress.csv cell; +inf (never kept) for a garbled cell."""
+    try:
+        return int(cell)
+    except ValueError:
+        return math.inf
 
 
 def read_progress(path: Path) -> list[dict[str, float]]:
@@ -43,7 +64,11 @@ def read_progress(path: Path) -> list[dict[str, float]]:
 
 
 class RunLogger:
-    """One CSV row and one TensorBoard scalar set per iteration, plus a tqdm progress bar."""
+    """One CSV row and one TensorBoard scalar set per iteration, plus a tqdm progress bar.
+
+    initial_steps > 0 continues a run: TensorBoard hides the events a killed process wrote past
+    that step (they are logged again), as progress.csv drops its rows (truncate_progress).
+    """
 
     def __init__(
         self, run_dir: Path, total_steps: int, initial_steps: int = 0, show_progress: bool = True
@@ -51,7 +76,7 @@ class RunLogger:
         from torch.utils.tensorboard import SummaryWriter
 
         self.csv_path = run_dir / "progress.csv"
-        self._writer = SummaryWriter(log_dir=str(run_dir / "tensorboard"))
+        self._writer = SummaryWriter(log_dir=str(run_dir / "tensorboard"), purge_step=initial_steps + 1)
         self._header: list[str] | None = None
         if self.csv_path.exists() and self.csv_path.stat().st_size > 0:
             with open(self.csv_path, newline="") as handle:
@@ -67,13 +92,19 @@ class RunLogger:
         )
 
     def log(self, row: dict[str, Any]) -> None:
-        """Append `row` (same keys every iteration) to progress.csv and TensorBoard."""
+        """Append `row` (same keys every iteration) to progress.csv and TensorBoard.
+
+        The row is on disk (fsynced) before this returns, so a checkpoint written afterwards
+        never covers an iteration whose row a power cut could still lose.
+        """
         if self._header is None:
             self._header = list(row)
             with open(self.csv_path, "w", newline="") as handle:
                 csv.writer(handle).writerow(self._header)
         with open(self.csv_path, "a", newline="") as handle:
             csv.writer(handle).writerow([_format(row.get(key)) for key in self._header])
+            handle.flush()
+            os.fsync(handle.fileno())
         step = int(row["env_steps"])
         for key, value in row.items():
             numeric = isinstance(value, (int, float)) and not isinstance(value, bool)

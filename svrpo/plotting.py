@@ -1,4 +1,9 @@
-"""Learning curves from run directories only (config.json, run.json, progress.csv)."""
+"""Learning curves from run directories only (config.json, run.json, progress.csv).
+
+`plot_runs` draws one panel per task and one line per preset (mean over seeds with a 95%
+bootstrap band); `plot_panels` is the same figure for any grouping, metric and axis, used by
+the per-experiment reports (svrpo.experiments.report).
+"""
 
 from __future__ import annotations
 
@@ -6,12 +11,21 @@ import json
 import math
 import warnings
 from collections import defaultdict
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
 from svrpo.logging import read_progress
+
+# The same preset keeps its colour in every figure (the paper draws SVRPO red, TRPO blue).
+PRESET_COLORS = {"svrpo": "tab:red", "trpo": "tab:blue", "svrpo-loglik": "tab:orange",
+                 "svrpo-sgd": "tab:green", "svrpo-identity": "tab:purple"}
+
+Groups = Mapping[str, Mapping[str, Sequence["RunCurve"]]]
+"""panel title (task) -> line label (preset) -> one curve per seed."""
 
 
 @dataclass(frozen=True)
@@ -25,6 +39,10 @@ class RunCurve:
     seed: int
     env_steps: np.ndarray
     values: np.ndarray
+    experiment: str | None = None
+    """Experiment name from run.json (runs written by `svrpo sweep`), else None."""
+    scale: str | None = None
+    """Scale from run.json (laptop | paper), if recorded."""
 
 
 def find_run_dirs(paths: list[Path]) -> list[Path]:
@@ -39,11 +57,12 @@ def find_run_dirs(paths: list[Path]) -> list[Path]:
 
 
 def load_curve(run_dir: Path, metric: str = "average_return") -> RunCurve:
-    """Read one run directory."""
+    """Read one run directory; a metric the run did not log reads as NaN."""
     config = json.loads((run_dir / "config.json").read_text())
     meta_path = run_dir / "run.json"
     meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
     rows = read_progress(run_dir / "progress.csv")
+    experiment, scale = meta.get("experiment"), meta.get("scale")
     return RunCurve(
         run_dir=run_dir,
         env_id=str(config["env_id"]),
@@ -51,6 +70,8 @@ def load_curve(run_dir: Path, metric: str = "average_return") -> RunCurve:
         seed=int(config["seed"]),
         env_steps=np.array([row["env_steps"] for row in rows]),
         values=np.array([row.get(metric, math.nan) for row in rows]),
+        experiment=None if experiment is None else str(experiment),
+        scale=None if scale is None else str(scale),
     )
 
 
@@ -79,22 +100,82 @@ def mean_and_ci(curves: np.ndarray, confidence: float = 0.95, seed: int = 0) -> 
     from scipy.stats import bootstrap
 
     filled = np.where(np.isfinite(curves), curves, mean)  # a NaN seed at one step: use the mean
-    result = bootstrap(
-        (filled,), np.mean, axis=0, confidence_level=confidence, n_resamples=2000,
-        method="percentile", rng=np.random.default_rng(seed),
-    )
+    with warnings.catch_warnings():  # identical seeds: a degenerate (zero-width) interval is right
+        warnings.simplefilter("ignore", RuntimeWarning)
+        result = bootstrap(
+            (filled,), np.mean, axis=0, confidence_level=confidence, n_resamples=2000,
+            method="percentile", rng=np.random.default_rng(seed),
+        )
     return mean, result.confidence_interval.low, result.confidence_interval.high
+
+
+def common_length(runs: Sequence[RunCurve]) -> int:
+    """Iterations every seed has reached (curves are compared on these only)."""
+    return min(len(run.env_steps) for run in runs)
+
+
+def plot_panels(
+    groups: Groups,
+    out: Path,
+    ylabel: str,
+    smoothing: int = 1,
+    x_axis: Literal["env_steps", "iteration"] = "env_steps",
+    log_scale: bool = False,
+    title: str | None = None,
+    reference: float | None = None,
+) -> Path:
+    """One panel per group key, one line per label: mean over seeds, 95% bootstrap band -> PNG.
+
+    With `log_scale` the mean and band are taken over log10 of the values (a geometric mean),
+    and non-positive values are left out. `reference` draws a dashed horizontal line.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = list(groups)
+    columns = max(1, min(3, len(panels)))
+    rows = max(1, math.ceil(len(panels) / columns))
+    figure, axes = plt.subplots(rows, columns, figsize=(5 * columns, 3.8 * rows), squeeze=False)
+    for axis, panel in zip(axes.flat, panels, strict=False):
+        for label, runs in groups[panel].items():
+            length = common_length(runs)
+            x = runs[0].env_steps[:length] if x_axis == "env_steps" else np.arange(1, length + 1)
+            stacked = np.stack([smooth(r.values[:length], smoothing) for r in runs]).astype(np.float64)
+            if log_scale:
+                stacked = np.log10(np.where(stacked > 0, stacked, np.nan))
+            mean, low, high = mean_and_ci(stacked)
+            if log_scale:
+                mean, low, high = 10.0**mean, 10.0**low, 10.0**high
+            seeds = f"{len(runs)} seed{'s' if len(runs) > 1 else ''}"
+            (line,) = axis.plot(x, mean, label=f"{label} ({seeds})", color=PRESET_COLORS.get(label))
+            if len(runs) > 1:
+                axis.fill_between(x, low, high, color=line.get_color(), alpha=0.2, linewidth=0)
+        if reference is not None:
+            axis.axhline(reference, color="grey", linestyle="--", linewidth=1)
+        if log_scale:
+            axis.set_yscale("log")
+        axis.set_title(panel)
+        axis.set_xlabel("environment steps" if x_axis == "env_steps" else "iteration")
+        axis.set_ylabel(ylabel)
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=8)
+    for axis in list(axes.flat)[len(panels) :]:
+        axis.set_visible(False)
+    if title:
+        figure.suptitle(title)
+    figure.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(out, dpi=120)
+    plt.close(figure)
+    return out
 
 
 def plot_runs(
     paths: list[Path], out: Path, metric: str = "average_return", smoothing: int = 1
 ) -> Path:
     """One panel per task, one line per preset (mean over seeds, 95% bootstrap band) -> PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     run_dirs = find_run_dirs(paths)
     if not run_dirs:
         raise FileNotFoundError(f"no run directory (with progress.csv) under {', '.join(map(str, paths))}")
@@ -103,29 +184,5 @@ def plot_runs(
         curve = load_curve(run_dir, metric)
         if len(curve.env_steps):
             groups[curve.env_id][curve.label].append(curve)
-    envs = sorted(groups)
-    columns = min(3, len(envs))
-    rows = math.ceil(len(envs) / columns)
-    figure, axes = plt.subplots(rows, columns, figsize=(5 * columns, 3.8 * rows), squeeze=False)
-    for axis, env_id in zip(axes.flat, envs, strict=False):
-        for label in sorted(groups[env_id]):
-            runs = groups[env_id][label]
-            length = min(len(r.env_steps) for r in runs)
-            x = runs[0].env_steps[:length]
-            stacked = np.stack([smooth(r.values[:length], smoothing) for r in runs])
-            mean, low, high = mean_and_ci(stacked)
-            (line,) = axis.plot(x, mean, label=f"{label} ({len(runs)} seed{'s' if len(runs) > 1 else ''})")
-            if len(runs) > 1:
-                axis.fill_between(x, low, high, color=line.get_color(), alpha=0.2, linewidth=0)
-        axis.set_title(env_id)
-        axis.set_xlabel("environment steps")
-        axis.set_ylabel(metric.replace("_", " "))
-        axis.grid(alpha=0.3)
-        axis.legend(fontsize=8)
-    for axis in list(axes.flat)[len(envs) :]:
-        axis.set_visible(False)
-    figure.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(out, dpi=120)
-    plt.close(figure)
-    return out
+    ordered = {env: dict(sorted(groups[env].items())) for env in sorted(groups)}
+    return plot_panels(ordered, out, metric.replace("_", " "), smoothing)

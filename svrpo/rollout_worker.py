@@ -6,6 +6,7 @@ modules it imports): torch would add seconds of start-up and its own thread pool
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import traceback
@@ -19,6 +20,7 @@ import numpy as np
 
 from svrpo.envs import get_env_state, make_env, scale_action, set_env_state
 from svrpo.policy_snapshot import PolicySnapshot
+from svrpo.vector_step import VectorStep
 
 THREAD_ENV_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 """BLAS/OpenMP thread-count variables pinned to 1 in workers (one thread each measured fastest)."""
@@ -69,9 +71,11 @@ class RolloutWorker:
         self._high = np.asarray(space.high, dtype=np.float64)
         self._rng = np.random.default_rng(np.random.SeedSequence([seed, worker_index]))
         first = worker_index * num_envs
-        self._obs = np.stack(
-            [env.reset(seed=seed + first + i)[0] for i, env in enumerate(self.envs)]
-        ).astype(np.float64)
+        # The wrappers are bypassed while sampling (VectorStep); the time limit is applied here.
+        self._stepper = VectorStep(env_id, self.envs)
+        spec = self.envs[0].spec
+        self._time_limit = None if spec is None else spec.max_episode_steps
+        self._obs = np.stack([self._stepper.reset(i, seed=seed + first + i) for i in range(num_envs)])
         self._timestep = np.zeros(num_envs, dtype=np.int64)
         self._return = np.zeros(num_envs, dtype=np.float64)
 
@@ -89,25 +93,32 @@ class RolloutWorker:
         terminated, truncated = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
         timesteps = np.empty(n, dtype=np.int64)
         ended: list[list[tuple[float, int]]] = [[] for _ in self.envs]
+        limit = self._time_limit
+        everyone = np.arange(len(self.envs))
         for k in range(int(counts.max(initial=0))):
-            active = np.flatnonzero(counts > k)
+            # steps_per_env differ by at most one, so only the last lockstep step is partial.
+            active = everyone if counts.min() > k else np.flatnonzero(counts > k)
+            rows = starts[active] + k
+            current = self._obs[active]
             # Executed actions are rounded to float32 first, so the batch stores exactly what
             # the env received (before clipping) and a replay of the batch is bit-exact.
-            sampled = snapshot.sample_action(self._obs[active], self._rng).astype(np.float32)
+            sampled = snapshot.sample_action(current, self._rng).astype(np.float32)
             controls = scale_action(sampled, self._low, self._high)
-            for action, control, i in zip(sampled, controls, active, strict=True):
-                row = starts[i] + k
-                obs[row], actions[row], timesteps[row] = self._obs[i], action, self._timestep[i]
-                observation, reward, term, trunc, _ = self.envs[i].step(control)
-                rewards[row], terminated[row], truncated[row] = reward, term, trunc
-                next_obs[row] = observation
-                self._return[i] += float(reward)
-                self._timestep[i] += 1
-                if term or trunc:
-                    ended[i].append((float(self._return[i]), int(self._timestep[i])))
-                    observation, _ = self.envs[i].reset()
-                    self._return[i], self._timestep[i] = 0.0, 0
-                self._obs[i] = observation
+            obs[rows], actions[rows], timesteps[rows] = current, sampled, self._timestep[active]
+            observations, step_rewards, step_terminated = self._stepper.step(active.tolist(), controls)
+            self._timestep[active] += 1
+            step_truncated = (
+                self._timestep[active] >= limit if limit is not None else np.zeros(len(active), bool)
+            )
+            rewards[rows], terminated[rows], truncated[rows] = step_rewards, step_terminated, step_truncated
+            next_obs[rows] = observations
+            self._return[active] += step_rewards
+            self._obs[active] = observations
+            for j in np.flatnonzero(step_terminated | step_truncated).tolist():
+                i = int(active[j])
+                ended[i].append((float(self._return[i]), int(self._timestep[i])))
+                self._obs[i] = self._stepper.reset(i)
+                self._return[i], self._timestep[i] = 0.0, 0
         segment_end = np.zeros(n, dtype=bool)
         last = (starts + counts - 1)[counts > 0]
         segment_end[last] = ~(terminated[last] | truncated[last])
@@ -156,12 +167,16 @@ class RolloutWorker:
 
     def get_state(self) -> dict[str, Any]:
         """Plain numpy/python state from which set_state resumes sampling bit-exactly."""
+        for env, elapsed in zip(self.envs, self._timestep.tolist(), strict=True):
+            # Sampling bypasses the TimeLimit wrapper; keep its counter meaningful in the state.
+            _set_elapsed_steps(env, elapsed)
         return {
             "rng": self._rng.bit_generator.state,
             "observations": self._obs.copy(),
             "timesteps": self._timestep.copy(),
             "episode_returns": self._return.copy(),
             "envs": [get_env_state(env) for env in self.envs],
+            "positions": self._stepper.get_positions(),
         }
 
     def set_state(self, state: dict[str, Any]) -> None:
@@ -174,11 +189,20 @@ class RolloutWorker:
         self._obs = np.array(state["observations"], dtype=np.float64)
         self._timestep = np.array(state["timesteps"], dtype=np.int64)
         self._return = np.array(state["episode_returns"], dtype=np.float64)
+        # Restoring physics recomputes derived quantities (body positions) that a step would have
+        # left one substep stale; the saved positions keep the next reward bit-exact.
+        self._stepper.set_positions(state.get("positions"))
 
     def close(self) -> None:
         """Close all training and evaluation envs."""
         for env in self.envs + self._eval_envs:
             env.close()
+
+
+def _set_elapsed_steps(env: gym.Env, elapsed: int) -> None:
+    """Set the TimeLimit wrapper's episode step counter, if the env has that wrapper."""
+    with contextlib.suppress(AttributeError):
+        env.set_wrapper_attr("_elapsed_steps", elapsed, force=False)
 
 
 def worker_main(

@@ -65,6 +65,15 @@ class Batch:
         return int(self.rewards.shape[0])
 
 
+class WorkerDiedError(RuntimeError):
+    """A sampling worker process died or stopped answering; the Sampler that owns it is unusable.
+
+    The training loop catches this one (and only this one) to restart the workers from the last
+    captured sampler state: an error *raised* inside a worker is a bug or a bad environment and
+    would only happen again.
+    """
+
+
 def steps_per_env(num_steps: int, num_envs: int) -> list[int]:
     """Split num_steps over num_envs: num_steps // num_envs each, one more for the first ones."""
     base, extra = divmod(num_steps, num_envs)
@@ -224,7 +233,8 @@ class Sampler:
         return payload
 
     def _fail(self, index: int) -> NoReturn:
-        """Mark the sampler unusable and raise: a lost worker takes envs and RNG state with it."""
+        """Mark the sampler unusable and raise WorkerDiedError: a lost worker takes envs and RNG
+        state with it."""
         proc = self._procs[index]
         proc.join(timeout=1.0)
         code = proc.exitcode
@@ -236,7 +246,7 @@ class Sampler:
             "are lost, so this Sampler cannot continue. Close it and create a new Sampler "
             "(or restore one from a checkpoint)."
         )
-        raise RuntimeError(self._broken)
+        raise WorkerDiedError(self._broken)
 
 
 @contextlib.contextmanager

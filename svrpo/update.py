@@ -13,11 +13,11 @@ from dataclasses import dataclass
 
 import torch
 
-from svrpo.config import Config
+from svrpo.config import Config, Surrogate
 from svrpo.estimators import GradientEstimator, SubsetGradient, estimator_variances
-from svrpo.objectives import SurrogateBatch, mean_kl_from, surrogate
+from svrpo.objectives import SurrogateBatch, per_sample_surrogate, surrogate
 from svrpo.parameters import flat_gradient, flat_parameters, set_flat_parameters
-from svrpo.policy import GaussianMlpPolicy
+from svrpo.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
 from svrpo.trust_region.line_search import backtracking_line_search
 from svrpo.trust_region.metrics import fisher_vector_product, max_step_length, search_direction
 
@@ -60,22 +60,48 @@ def _subset_gradient(policy: GaussianMlpPolicy, batch: SurrogateBatch, config: C
     return gradient
 
 
-def _objective_and_kl(
-    policy: GaussianMlpPolicy,
-    batch: SurrogateBatch,
-    config: Config,
-    anchor_mean: torch.Tensor,
-    anchor_log_std: torch.Tensor,
-) -> Callable[[], tuple[float, float]]:
-    """() -> (U(w), mean KL(anchor || pi_w)) on the full batch at the policy's current w."""
+class _FullBatchEvaluator:
+    """U(w) and mean KL(anchor || pi_w) on the full batch at the policy's current w, from one
+    forward pass of the network (values only, GaussianMlpPolicy.activations).
 
-    def evaluate() -> tuple[float, float]:
+    `last_objective` keeps the most recent U: after an accepted line search it is U at the
+    accepted point, so the next inner step need not recompute its start objective.
+    """
+
+    def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> None:
+        self.policy, self.batch, self.kind = policy, batch, kind
+        self.last_objective = math.nan
+
+    def mean(self) -> torch.Tensor:
+        return self.policy.activations(self.batch.observations)[-1]
+
+    def objective(self, mean: torch.Tensor | None = None) -> float:
+        """U(w) = mean_t U_t(w) on the full batch (mean: the network's output, if already known)."""
         with torch.no_grad():
-            objective = float(surrogate(policy, batch, config.surrogate))
-            kl = float(mean_kl_from(anchor_mean, anchor_log_std, policy, batch.observations))
-        return objective, kl
+            mean = self.mean() if mean is None else mean
+            log_prob = gaussian_log_prob(self.batch.actions, mean, self.policy.log_std)
+            value = per_sample_surrogate(log_prob, self.batch.old_log_prob, self.batch.advantages, self.kind)
+            self.last_objective = float(value.mean())
+        return self.last_objective
 
-    return evaluate
+    def kl(self, anchor_mean: torch.Tensor, anchor_log_std: torch.Tensor,
+           mean: torch.Tensor | None = None) -> float:
+        """Mean over the batch of KL(N(anchor) || pi_w(.|s))."""
+        with torch.no_grad():
+            mean = self.mean() if mean is None else mean
+            log_std = self.policy.log_std.expand_as(mean)
+            return float(gaussian_kl(anchor_mean, anchor_log_std, mean, log_std).mean())
+
+    def objective_and_kl(
+        self, anchor_mean: torch.Tensor, anchor_log_std: torch.Tensor
+    ) -> Callable[[], tuple[float, float]]:
+        """The line search's evaluate(): () -> (U(w), KL(anchor || pi_w)), one forward pass."""
+
+        def evaluate() -> tuple[float, float]:
+            mean = self.mean()
+            return self.objective(mean), self.kl(anchor_mean, anchor_log_std, mean)
+
+        return evaluate
 
 
 def _draw(count: int, size: int, generator: torch.Generator) -> torch.Tensor:
@@ -106,8 +132,8 @@ def update_policy(
     fisher_rows = max(1, int(round(config.fisher_subsample * count)))
     minibatch_rows = count if config.estimator == "full" else config.minibatch_size
 
-    with torch.no_grad():
-        start_objective = float(surrogate(policy, batch, config.surrogate))
+    full_batch = _FullBatchEvaluator(policy, batch, config.surrogate)
+    start_objective = step_objective = full_batch.objective()
     accepted = backtracks = skipped_curvature = skipped_gradient = 0
     expected = 0.0
     cg_residuals: list[float] = []
@@ -145,19 +171,17 @@ def update_policy(
         if config.kl_anchor == "sampling":
             anchor_mean, anchor_log_std = batch.old_mean, batch.old_log_std
         else:
-            with torch.no_grad():
-                anchor_mean, anchor_log_std = policy(batch.observations)
+            anchor_mean, anchor_log_std = full_batch.mean(), policy.log_std.detach().clone()
         anchor_log_std = anchor_log_std.expand_as(anchor_mean)
-        with torch.no_grad():
-            step_objective = float(surrogate(policy, batch, config.surrogate))
 
-        evaluate = _objective_and_kl(policy, batch, config, anchor_mean, anchor_log_std)
         full_step = step_length * direction
         result = backtracking_line_search(
             start=flat_parameters(policy),
             full_step=full_step,
             set_parameters=lambda flat: set_flat_parameters(policy, flat),
-            evaluate=evaluate,
+            evaluate=full_batch.objective_and_kl(anchor_mean, anchor_log_std),
+            # U(w_j) is U at the last accepted point (or at w~): a rejected search restores the
+            # parameters exactly, so recomputing it would give the same number.
             start_objective=step_objective,
             max_kl=config.max_kl,
             ratio=config.backtrack_ratio,
@@ -165,20 +189,19 @@ def update_policy(
         )
         backtracks += result.backtracks
         if result.accepted:
+            step_objective = full_batch.last_objective  # the accepted trial was evaluated last
             accepted += 1
             expected += float(gradient.dot(full_step)) * result.step_fraction
 
-    with torch.no_grad():
-        final_objective = float(surrogate(policy, batch, config.surrogate))
-        old_log_std = batch.old_log_std.expand_as(batch.old_mean)
-        final_kl = float(mean_kl_from(batch.old_mean, old_log_std, policy, batch.observations))
+    old_log_std = batch.old_log_std.expand_as(batch.old_mean)
+    final_kl = full_batch.kl(batch.old_mean, old_log_std)
     return UpdateStats(
         inner_steps_attempted=config.inner_steps,
         inner_steps_accepted=accepted,
         backtracks=backtracks,
         skipped_curvature=skipped_curvature,
         skipped_nonfinite_gradient=skipped_gradient,
-        surrogate_improvement=final_objective - start_objective,
+        surrogate_improvement=step_objective - start_objective,
         expected_improvement=expected,
         mean_kl=final_kl,
         cg_residual=sum(cg_residuals) / len(cg_residuals) if cg_residuals else math.nan,

@@ -1,0 +1,168 @@
+"""Head-to-head with sb3-contrib TRPO: wall-clock time and return at equal environment steps.
+
+Run it with a Python that has sb3-contrib (kept out of the project's own environment):
+
+    python3 -m venv /work/sb3venv
+    /work/sb3venv/bin/pip install torch==2.13.0 sb3-contrib "gymnasium[mujoco]"
+    /work/sb3venv/bin/pip install -e .
+    /work/sb3venv/bin/python benchmarks/vs_sb3.py --envs Hopper-v5 HalfCheetah-v5 --seeds 0 1 2
+
+Each (library, task, seed) trains in its own subprocess, ours and theirs alternating seed by
+seed so that a change in machine load hits both. Our TRPO is configured as sb3-contrib's
+defaults (see OUR_CONFIG); the differences that remain are listed in BENCHMARKS.md.
+Time is the training call only (ours: `train`, including its checkpoint and final
+evaluation; theirs: `learn`), not interpreter start-up or imports.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+ITERATIONS = 98
+"""Iterations of 2048 steps: 200,704 env steps, the same count for both libraries."""
+EVAL_EPISODES = 10
+
+# sb3-contrib TRPO defaults (v2.x) expressed in our config fields.
+OUR_CONFIG: dict[str, Any] = {
+    "baseline": "mlp", "baseline_hidden_sizes": (64, 64), "baseline_lr": 1e-3,
+    "baseline_epochs": 10, "baseline_minibatch_size": 128,  # n_critic_updates=10, batch 128
+    "gae_lambda": 0.95, "gamma": 0.99, "batch_size": 2048, "normalize_observations": True,
+    "normalize_advantages": True, "cg_iters": 15, "cg_damping": 0.1, "backtrack_ratio": 0.8,
+    "max_backtracks": 10, "max_kl": 0.01, "fisher_subsample": 1.0, "hidden_sizes": (64, 64),
+    "max_episode_steps": 1000, "variance_probe_batches": 0,
+}
+
+
+def run_ours(env_id: str, seed: int) -> dict[str, Any]:
+    """Train our `trpo` preset configured like sb3-contrib; return time and returns."""
+    import csv
+
+    import numpy as np
+
+    from svrpo.algorithm import train
+    from svrpo.config import make_preset
+
+    config = make_preset("trpo", env_id, "laptop").replace(
+        **OUR_CONFIG, seed=seed, total_steps=ITERATIONS * 2048, eval_every=ITERATIONS,
+        eval_episodes=EVAL_EPISODES, checkpoint_every=ITERATIONS,
+    )
+    with tempfile.TemporaryDirectory() as directory:
+        tic = time.perf_counter()
+        train(config, Path(directory), show_progress=False)
+        seconds = time.perf_counter() - tic
+        with open(Path(directory) / "progress.csv", newline="") as handle:
+            rows = list(csv.DictReader(handle))
+    returns = [float(r["average_return"]) for r in rows]
+    sampling = sum(float(r["time_sampling"]) for r in rows)
+    return {
+        "seconds": seconds, "env_steps": int(rows[-1]["env_steps"]),
+        "sampling_seconds": sampling,
+        "final_eval_return": float(rows[-1]["eval_return"]),
+        "train_return_last_10_iterations": float(np.nanmean(returns[-10:])),
+        "num_workers": config.num_workers, "envs_per_worker": config.envs_per_worker,
+        "torch_threads": config.torch_threads,
+    }
+
+
+def run_sb3(env_id: str, seed: int) -> dict[str, Any]:
+    """Train sb3-contrib TRPO with its defaults (MlpPolicy, 1 env, observation normalisation)."""
+    import numpy as np
+    import torch
+    from sb3_contrib import TRPO
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.evaluation import evaluate_policy
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    env = VecNormalize(make_vec_env(env_id, n_envs=1, seed=seed), norm_obs=True, norm_reward=False)
+    model = TRPO("MlpPolicy", env, seed=seed, device="cpu")
+    tic = time.perf_counter()
+    model.learn(total_timesteps=ITERATIONS * 2048)
+    seconds = time.perf_counter() - tic
+    recent = [info["r"] for info in model.ep_info_buffer]
+    eval_env = VecNormalize(make_vec_env(env_id, n_envs=1, seed=seed + 1_000_003), norm_obs=True,
+                            norm_reward=False, training=False)
+    eval_env.obs_rms = env.obs_rms
+    mean_return, _ = evaluate_policy(model, eval_env, n_eval_episodes=EVAL_EPISODES, deterministic=True)
+    return {
+        "seconds": seconds, "env_steps": int(model.num_timesteps),
+        "final_eval_return": float(mean_return),
+        "train_return_last_100_episodes": float(np.mean(recent)) if recent else float("nan"),
+        "torch_threads": torch.get_num_threads(),
+    }
+
+
+def versions() -> dict[str, str]:
+    """Library versions in this interpreter (sb3 ones only where installed)."""
+    import importlib.metadata as metadata
+
+    found = {}
+    for name in ("sb3-contrib", "stable-baselines3", "torch", "gymnasium", "mujoco", "numpy"):
+        try:
+            found[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            found[name] = "not installed"
+    return found
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", nargs="+", default=["Hopper-v5", "HalfCheetah-v5"])
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--one", nargs=3, metavar=("LIBRARY", "ENV", "SEED"), help=argparse.SUPPRESS)
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "vs_sb3.json")
+    args = parser.parse_args()
+    if args.one:  # child process: one training run, JSON on stdout's last line
+        library, env_id, seed = args.one[0], args.one[1], int(args.one[2])
+        result = (run_ours if library == "svrpo" else run_sb3)(env_id, seed)
+        print(json.dumps(result))
+        return
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from svrpo.bench import machine_info
+
+    report: dict[str, Any] = {
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+        "machine": machine_info(), "versions": versions(), "iterations": ITERATIONS,
+        "env_steps": ITERATIONS * 2048, "our_config": OUR_CONFIG, "runs": [], "summary": {},
+    }
+    for env_id in args.envs:
+        for seed in args.seeds:
+            for library in ("svrpo", "sb3-contrib"):
+                load = list(os.getloadavg())
+                output = subprocess.run(
+                    [sys.executable, __file__, "--one", library, env_id, str(seed)],
+                    check=True, capture_output=True, text=True,
+                ).stdout.strip().splitlines()[-1]
+                run = {"library": library, "env": env_id, "seed": seed, "load_average_before": load,
+                       **json.loads(output)}
+                report["runs"].append(run)
+                print(json.dumps(run), flush=True)
+                args.out.parent.mkdir(parents=True, exist_ok=True)
+                args.out.write_text(json.dumps(report, indent=2) + "\n")  # partial results survive
+        ours = [r for r in report["runs"] if r["env"] == env_id and r["library"] == "svrpo"]
+        theirs = [r for r in report["runs"] if r["env"] == env_id and r["library"] == "sb3-contrib"]
+        report["summary"][env_id] = {
+            "median_seconds_svrpo": statistics.median(r["seconds"] for r in ours),
+            "median_seconds_sb3": statistics.median(r["seconds"] for r in theirs),
+            "speedup_median_of_per_seed_ratios": statistics.median(
+                b["seconds"] / a["seconds"] for a, b in zip(ours, theirs, strict=True)),
+            "eval_return_svrpo": [r["final_eval_return"] for r in ours],
+            "eval_return_sb3": [r["final_eval_return"] for r in theirs],
+            "mean_eval_return_svrpo": statistics.mean(r["final_eval_return"] for r in ours),
+            "mean_eval_return_sb3": statistics.mean(r["final_eval_return"] for r in theirs),
+        }
+        print(json.dumps({env_id: report["summary"][env_id]}), flush=True)
+        args.out.write_text(json.dumps(report, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

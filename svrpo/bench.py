@@ -1,0 +1,397 @@
+"""`svrpo bench`: how close sampling runs to the physics, and what one policy update costs.
+
+Two measurements, each a ratio taken within one run so that a busy machine skews both sides:
+
+* sampling: env steps/s of `Sampler.sample` (workers = cores, NumPy policy inference included)
+  against raw MuJoCo on all cores via `mujoco.rollout`, replaying exactly the states and
+  controls our sampler recorded (no Python in the loop: the physics limit on this machine);
+* update: seconds of one SVRPO and one TRPO update at a given scale, split into its parts
+  (see `update_breakdown`), against the seconds taken to sample the same iteration's N steps.
+
+The benchmark scripts in benchmarks/ call these functions with full-size settings; `main` runs
+a quick version (about a minute on 2 cores).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import mujoco
+import mujoco.rollout
+import numpy as np
+import torch
+
+from svrpo.envs import make_env, scale_action
+from svrpo.policy import GaussianMlpPolicy
+from svrpo.policy_snapshot import PolicySnapshot
+from svrpo.sampling import Batch, Sampler, steps_per_env
+
+_FULL_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS  # what mujoco.rollout's initial_state holds
+
+
+def machine_info() -> dict[str, Any]:
+    """Enough to tell machines and library versions apart when comparing results."""
+    return {
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "processor": platform.processor() or _cpu_model(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "mujoco": mujoco.__version__,
+        "gymnasium": gymnasium.__version__,
+        "torch": torch.__version__,
+        # Other processes on the machine skew every measurement; record how busy it was.
+        "load_average_1_5_15min": list(os.getloadavg()),
+    }
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return ""
+
+
+def random_snapshot(env_id: str, seed: int = 0) -> PolicySnapshot:
+    """The initial policy of a run: (64, 64) tanh MLP, near-zero mean, std 1."""
+    env = make_env(env_id)
+    obs_dim, act_dim = env.observation_space.shape[0], env.action_space.shape[0]  # type: ignore[index]
+    env.close()
+    torch.manual_seed(seed)
+    return GaussianMlpPolicy(obs_dim, act_dim).snapshot()
+
+
+def replay_states(
+    env_id: str, batch: Batch, num_envs: int, seed: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """Replay a fresh Sampler's first batch through Gymnasium -> (states, warm starts, controls, exact).
+
+    One row per recorded step: the full MuJoCo state and solver warm start before the step and
+    the clipped, scaled control the env received. `exact` says whether the replay reproduced
+    the batch's next observations, rewards and terminations bit for bit.
+    """
+    env = make_env(env_id)
+    base: Any = env.unwrapped
+    model = base.model
+    states = np.empty((batch.num_steps, mujoco.mj_stateSize(model, _FULL_STATE)))
+    warmstarts = np.empty((batch.num_steps, model.nv))
+    controls = np.empty((batch.num_steps, 1, model.nu))
+    actions, next_obs = batch.actions.numpy(), batch.next_observations.numpy()
+    rewards, terminated = batch.rewards.numpy(), batch.terminated.numpy()
+    ends = (batch.terminated | batch.truncated).numpy()
+    space: Any = env.action_space
+    low, high = space.low.astype(np.float64), space.high.astype(np.float64)
+    exact, row = True, 0
+    for index, count in enumerate(steps_per_env(batch.num_steps, num_envs)):
+        env.reset(seed=seed + index)  # the sampler's seeding of env `index`
+        for _ in range(count):
+            mujoco.mj_getState(model, base.data, states[row], _FULL_STATE)
+            warmstarts[row] = base.data.qacc_warmstart
+            controls[row, 0] = scale_action(actions[row], low, high)
+            observation, reward, term, _, _ = env.step(controls[row, 0])
+            exact &= bool(np.array_equal(observation.astype(np.float32), next_obs[row]))
+            exact &= bool(np.float32(reward) == rewards[row]) and bool(term) == bool(terminated[row])
+            if ends[row]:
+                env.reset()
+            row += 1
+    env.close()
+    return states, warmstarts, controls, exact
+
+
+def sampling_vs_physics(
+    env_id: str,
+    snapshot: PolicySnapshot,
+    steps: int,
+    repeats: int = 3,
+    workers: int | None = None,
+    envs_per_worker: int = 8,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Env steps/s of our Sampler and of mujoco.rollout on the same states, interleaved.
+
+    The sampler's first batch (fresh envs) is the warm-up and the source of the replayed
+    states; then each repeat times one `sample` and one rollout of the recorded steps, so a
+    change in machine load hits both sides alike. Ratio = median ours / median physics.
+    """
+    workers = workers or os.cpu_count() or 1
+    nthread = os.cpu_count() or 1
+    with Sampler(env_id, workers, envs_per_worker, seed) as sampler:
+        first = sampler.sample(snapshot, steps)
+        states, warmstarts, controls, exact = replay_states(
+            env_id, first, max(workers, 1) * envs_per_worker, seed
+        )
+        env = make_env(env_id)
+        base: Any = env.unwrapped
+        model, frame_skip = base.model, int(base.frame_skip)
+        env.close()
+        datas = [mujoco.MjData(model) for _ in range(nthread)]
+        out = np.empty((len(states), frame_skip, states.shape[1]))
+        ours, physics, episodes = [], [], []
+        with mujoco.rollout.Rollout(nthread=nthread) as pool:
+            rollout: Callable[[], None] = lambda: pool.rollout(  # noqa: E731
+                model, datas, states, controls, nstep=frame_skip,
+                initial_warmstart=warmstarts, state=out,
+            )
+            rollout()  # warms up the thread pool
+            for _ in range(repeats):
+                tic = time.perf_counter()
+                batch = sampler.sample(snapshot, steps)
+                ours.append(steps / (time.perf_counter() - tic))
+                episodes.append(int(batch.episode_lengths.size))
+                tic = time.perf_counter()
+                rollout()
+                physics.append(len(states) / (time.perf_counter() - tic))
+    ratio = statistics.median(ours) / statistics.median(physics)
+    return {
+        "env": env_id, "steps": steps, "repeats": repeats, "workers": workers,
+        "envs_per_worker": envs_per_worker, "rollout_threads": nthread, "frame_skip": frame_skip,
+        "sampler_steps_per_s": ours, "physics_steps_per_s": physics,
+        "sampler_steps_per_s_median": statistics.median(ours),
+        "physics_steps_per_s_median": statistics.median(physics),
+        "ratio": ratio, "replay_bit_exact": exact,
+        "episodes_per_batch": episodes,
+        "mean_episode_length_first_batch": (
+            float(first.episode_lengths.mean()) if first.episode_lengths.size else None
+        ),
+    }
+
+
+class _Timers:
+    """Named wall-clock accumulators; `wrap` times every call of a function under a name."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        self.calls: dict[str, int] = {}
+
+    @contextmanager
+    def time(self, name: str) -> Iterator[None]:
+        tic = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - tic
+            self.calls[name] = self.calls.get(name, 0) + 1
+
+    def wrap(self, name: str, function: Callable[..., Any]) -> Callable[..., Any]:
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            with self.time(name):
+                return function(*args, **kwargs)
+
+        return timed
+
+
+@contextmanager
+def _instrumented_update(timers: _Timers) -> Iterator[None]:
+    """Patch svrpo.update's collaborators so each call is timed under the part it belongs to.
+
+    Parts: full_gradient (grad U over all N), minibatch_gradients (current and snapshot
+    gradients on mini-batches), fisher_setup (building grad-KL), fisher_products (each F v,
+    inside CG and for s^T F s), cg (the CG recursion less its products), line_search (the
+    trials, surrogate and KL on the full batch), variance_probe. The remainder of update_policy
+    is reported as other.
+    """
+    from svrpo import update
+
+    saved = {name: getattr(update, name) for name in (
+        "_subset_gradient", "fisher_vector_product", "search_direction", "backtracking_line_search",
+        "estimator_variances",
+    )}
+
+    def subset_gradient(*args: Any, **kwargs: Any) -> Callable[[torch.Tensor | None], torch.Tensor]:
+        gradient = saved["_subset_gradient"](*args, **kwargs)
+
+        def timed(indices: torch.Tensor | None) -> torch.Tensor:
+            with timers.time("full_gradient" if indices is None else "minibatch_gradients"):
+                return gradient(indices)
+
+        return timed
+
+    def fisher_vector_product(*args: Any, **kwargs: Any) -> Callable[[torch.Tensor], torch.Tensor]:
+        with timers.time("fisher_setup"):
+            product = saved["fisher_vector_product"](*args, **kwargs)
+        return timers.wrap("fisher_products", product)
+
+    def search_direction(*args: Any, **kwargs: Any) -> Any:
+        before = timers.seconds.get("fisher_products", 0.0)
+        with timers.time("cg"):
+            result = saved["search_direction"](*args, **kwargs)
+        # Report CG's own work apart from the Fisher products it calls.
+        timers.seconds["cg"] -= timers.seconds.get("fisher_products", 0.0) - before
+        return result
+
+    def probe(*args: Any, **kwargs: Any) -> Any:
+        gradients = ("full_gradient", "minibatch_gradients")
+        before = {key: timers.seconds.get(key, 0.0) for key in gradients}
+        with timers.time("variance_probe"):
+            result = saved["estimator_variances"](*args, **kwargs)
+        timers.seconds.update(before)  # the probe's own gradients count as probe time only
+        return result
+
+    update._subset_gradient = subset_gradient
+    update.fisher_vector_product = fisher_vector_product
+    update.search_direction = search_direction
+    update.backtracking_line_search = timers.wrap("line_search", saved["backtracking_line_search"])
+    update.estimator_variances = probe
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            setattr(update, name, value)
+
+
+UPDATE_PARTS = ("full_gradient", "minibatch_gradients", "fisher_setup", "fisher_products", "cg",
+                "line_search", "variance_probe")
+
+
+def update_breakdown(
+    env_id: str = "Hopper-v5",
+    scale: str = "paper",
+    seed: int = 0,
+    warmup_iterations: int = 0,
+    **overrides: Any,
+) -> dict[str, Any]:
+    """Time one iteration's sampling, one SVRPO update and one TRPO update on the same batch.
+
+    Both presets at `scale` (with `overrides` applied to both) see the same batch and start
+    from the same policy and generator states. `warmup_iterations` full SVRPO iterations run
+    first, so the measured update is not the very first one. Also times the baseline fits
+    (the preset's and an MLP value function with the config's defaults).
+    """
+    from svrpo.algorithm import build_run, run_iteration, snapshot_of, surrogate_batch
+    from svrpo.baselines import MlpValueFunction
+    from svrpo.config import make_preset
+    from svrpo.update import update_policy
+
+    common = {"seed": seed, "eval_every": 0, **overrides}
+    svrpo_config = make_preset("svrpo", env_id, scale).replace(**common)  # type: ignore[arg-type]
+    trpo_config = make_preset("trpo", env_id, scale).replace(**common)  # type: ignore[arg-type]
+    run = build_run(svrpo_config)
+    try:
+        for _ in range(warmup_iterations):
+            run_iteration(run)
+        tic = time.perf_counter()
+        batch = run.sampler.sample(snapshot_of(run), svrpo_config.batch_size)
+        sampling_s = time.perf_counter() - tic
+        tic = time.perf_counter()
+        data, targets, inputs = surrogate_batch(run, batch)
+        advantages_s = time.perf_counter() - tic
+        start = {k: v.clone() for k, v in run.policy.state_dict().items()}
+        generator, probe = run.generator.get_state(), run.probe_generator.get_state()
+        results: dict[str, Any] = {}
+        for name, config in (("svrpo", svrpo_config), ("trpo", trpo_config)):
+            run.policy.load_state_dict(start)
+            run.generator.set_state(generator)
+            run.probe_generator.set_state(probe)
+            timers = _Timers()
+            with _instrumented_update(timers):
+                tic = time.perf_counter()
+                stats = update_policy(run.policy, data, config, run.generator, run.probe_generator)
+                total = time.perf_counter() - tic
+            parts = {part: timers.seconds.get(part, 0.0) for part in UPDATE_PARTS}
+            parts["other"] = total - sum(parts.values())
+            results[name] = {
+                "seconds": total, "parts_s": parts, "calls": dict(timers.calls),
+                "inner_steps": config.inner_steps, "accepted": stats.inner_steps_accepted,
+                "backtracks": stats.backtracks, "minibatch_size": config.minibatch_size,
+                "fisher_subsample": config.fisher_subsample,
+            }
+        tic = time.perf_counter()
+        run.baseline.fit(inputs, batch.timesteps, targets)
+        baseline_s = time.perf_counter() - tic
+        mlp = MlpValueFunction(
+            inputs.shape[1], svrpo_config.baseline_hidden_sizes, svrpo_config.baseline_lr,
+            svrpo_config.baseline_epochs, svrpo_config.baseline_minibatch_size,
+            torch.Generator().manual_seed(seed),
+        )
+        tic = time.perf_counter()
+        mlp.fit(inputs, batch.timesteps, targets)
+        mlp_s = time.perf_counter() - tic
+    finally:
+        run.sampler.close()
+    return {
+        "env": env_id, "scale": scale, "batch_size": svrpo_config.batch_size,
+        "hidden_sizes": list(svrpo_config.hidden_sizes), "warmup_iterations": warmup_iterations,
+        "torch_threads": svrpo_config.torch_threads, "num_workers": svrpo_config.num_workers,
+        "sampling_s": sampling_s, "advantages_s": advantages_s,
+        "baseline_fit_s": {svrpo_config.baseline: baseline_s, "mlp_default": mlp_s},
+        "svrpo": results["svrpo"], "trpo": results["trpo"],
+        "svrpo_update_over_sampling": results["svrpo"]["seconds"] / sampling_s,
+        "trpo_update_over_sampling": results["trpo"]["seconds"] / sampling_s,
+    }
+
+
+def trained_snapshot(env_id: str, iterations: int, seed: int = 0) -> tuple[PolicySnapshot, dict[str, Any]]:
+    """The policy after `iterations` iterations of the `trpo` preset at laptop scale (N = 5,000).
+
+    "Trained" means only that: a policy that has moved away from the initial one (longer
+    episodes, different states), not a converged one. Returns the snapshot and its record.
+    """
+    from svrpo.algorithm import build_run, run_iteration, snapshot_of
+    from svrpo.config import make_preset
+
+    config = make_preset("trpo", env_id, "laptop").replace(seed=seed, eval_every=0)
+    run = build_run(config)
+    try:
+        rows = [run_iteration(run) for _ in range(iterations)]
+    finally:
+        run.sampler.close()
+    record = {
+        "preset": "trpo", "scale": "laptop", "iterations": iterations,
+        "env_steps": iterations * config.batch_size,
+        "average_return_last_iteration": rows[-1]["average_return"] if rows else None,
+        "average_return_first_iteration": rows[0]["average_return"] if rows else None,
+    }
+    return snapshot_of(run), record
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`svrpo bench`: a quick sampling-vs-physics ratio and update-cost breakdown; prints ratios."""
+    parser = argparse.ArgumentParser(
+        prog="svrpo bench", description="Quick performance check: sampling vs raw physics, update cost."
+    )
+    parser.add_argument("--env", default="Hopper-v5")
+    parser.add_argument("--steps", type=int, default=10_000, help="steps per sampling measurement")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--batch-size", type=int, default=10_000,
+                        help="N for the update measurement (m = N/10, J = 50: the paper's Hopper ratios)")
+    parser.add_argument("--out", type=Path, default=None, help="also write the results as JSON here")
+    args = parser.parse_args(argv)
+    machine = machine_info()
+    print(f"svrpo bench on {machine['cpu_count']} cores ({machine['processor']}), load "
+          f"{machine['load_average_1_5_15min'][0]:.2f}")
+    sampling = sampling_vs_physics(args.env, random_snapshot(args.env), args.steps, args.repeats)
+    print(f"sampling {args.env}: ours {sampling['sampler_steps_per_s_median']:,.0f} env steps/s, "
+          f"raw MuJoCo {sampling['physics_steps_per_s_median']:,.0f} -> ratio {sampling['ratio']:.2f} "
+          f"(target >= 0.7; replay bit-exact: {sampling['replay_bit_exact']})")
+    update = update_breakdown(
+        args.env, "paper", batch_size=args.batch_size, minibatch_size=max(1, args.batch_size // 10),
+        inner_steps=50,
+    )
+    for name, target in (("svrpo", 1.0), ("trpo", 0.25)):
+        parts = ", ".join(f"{k} {v:.2f}" for k, v in update[name]["parts_s"].items() if v >= 0.005)
+        ratio = update[f"{name}_update_over_sampling"]
+        print(f"update {name}: {update[name]['seconds']:.2f} s = {ratio:.2f} x sampling the same "
+              f"{update['batch_size']:,} steps ({update['sampling_s']:.2f} s; target <= {target}) "
+              f"[{parts}]")
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        report = {"machine": machine, "sampling": sampling, "update": update}
+        args.out.write_text(json.dumps(report, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,246 @@
+"""Deterministic (mean-action) evaluation of a saved policy, and an MP4 of its episodes.
+
+Episode k is reset with seed + k and driven by the policy's mean action (clipped and rescaled
+to the action box, as in training), so the same checkpoint and seed always give the same
+returns, and `evaluate(run, n, config.seed + 1_000_003)` repeats the run's logged eval_return.
+
+Rendering happens in a child process (`python -m svrpo.evaluation`, see `record_video`):
+MuJoCo picks its OpenGL backend from MUJOCO_GL when it is first imported, and a wrong value
+breaks the import, so only the child that renders gets it set.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+from svrpo import checkpoint
+from svrpo.config import Config
+from svrpo.envs import env_info, make_env, scale_action
+from svrpo.policy_snapshot import PolicySnapshot
+
+GL_BACKENDS = ("egl", "osmesa")
+"""Tried in this order unless MUJOCO_GL is set: EGL (GPU, or Mesa's software renderer without
+one), then OSMesa (software; Debian package libosmesa6)."""
+_NO_RENDERER = 3  # the render child's exit code when its GL backend cannot make a context
+
+
+class EvaluationError(ValueError):
+    """A path that holds no checkpoint, or a video that cannot be rendered."""
+
+
+@dataclass(frozen=True)
+class LoadedPolicy:
+    """A checkpoint's policy (with its observation normaliser) as a torch-free snapshot."""
+
+    config: Config
+    snapshot: PolicySnapshot
+    checkpoint: Path
+    iteration: int
+    env_steps: int
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Undiscounted returns and lengths of deterministic episodes seed, seed + 1, ..."""
+
+    policy: LoadedPolicy
+    seed: int
+    returns: np.ndarray
+    """(episodes,) float64."""
+    lengths: np.ndarray
+    """(episodes,) int64."""
+
+    @property
+    def mean(self) -> float:
+        """Mean return over the episodes."""
+        return float(self.returns.mean())
+
+    @property
+    def std(self) -> float:
+        """Standard deviation over episodes (ddof = 0)."""
+        return float(self.returns.std())
+
+
+def find_checkpoint(path: Path) -> Path:
+    """`path` itself if it is a .pt file, else the newest checkpoint of the run directory."""
+    if path.is_file():
+        return path
+    if not path.is_dir():
+        raise EvaluationError(f"{path} does not exist")
+    found = checkpoint.list_checkpoints(path / "checkpoints")
+    if not found:
+        raise EvaluationError(f"{path} holds no checkpoints/iter_*.pt (not a run directory, or not "
+                              "trained for a checkpoint interval yet)")
+    return found[0]
+
+
+def load_policy(path: Path) -> LoadedPolicy:
+    """Rebuild the policy and normaliser of a run directory's latest checkpoint (or a .pt file).
+
+    The checkpoint is read with weights_only=True (svrpo.checkpoint.load): no pickled code runs.
+    """
+    import torch
+
+    from svrpo.normalization import RunningMeanStd
+    from svrpo.policy import GaussianMlpPolicy
+
+    source = find_checkpoint(path)
+    state = checkpoint.load(source)
+    try:
+        config = Config.from_json(state["config"])
+        info = env_info(config.env_id, config.max_episode_steps)
+        policy = GaussianMlpPolicy(info.obs_dim, info.act_dim, config.hidden_sizes, config.init_log_std)
+        policy.load_state_dict(state["policy"])
+        obs_mean: torch.Tensor | None = None
+        obs_std: torch.Tensor | None = None
+        if state.get("normalizer") is not None:
+            normalizer = RunningMeanStd(info.obs_dim)
+            normalizer.load_state_dict(state["normalizer"])
+            obs_mean, obs_std = normalizer.mean, normalizer.std
+    except (KeyError, RuntimeError, ValueError, TypeError) as error:
+        raise checkpoint.CheckpointError(f"{source} does not hold a usable policy: {error}") from None
+    return LoadedPolicy(config, policy.snapshot(obs_mean, obs_std), source, int(state["iteration"]),
+                        int(state["env_steps"]))
+
+
+OnStep = Callable[[gym.Env, int], None]
+
+
+def run_episodes(policy: LoadedPolicy, episodes: int, seed: int, env: gym.Env | None = None,
+                 on_step: OnStep | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(returns, lengths) of `episodes` mean-action episodes, episode k reset with seed + k.
+
+    `env` defaults to the training env (svrpo.envs.make_env); `on_step(env, step)` is called after
+    each reset (step 0) and each env step (for rendering).
+    """
+    config = policy.config
+    env = env if env is not None else make_env(config.env_id, config.max_episode_steps)
+    space = env.action_space
+    assert isinstance(space, gym.spaces.Box)  # make_env and env_info checked it
+    low, high = np.asarray(space.low, dtype=np.float64), np.asarray(space.high, dtype=np.float64)
+    returns = np.zeros(episodes, dtype=np.float64)
+    lengths = np.zeros(episodes, dtype=np.int64)
+    try:
+        for episode in range(episodes):
+            observation = env.reset(seed=seed + episode)[0]
+            done, step = False, 0
+            if on_step is not None:
+                on_step(env, 0)
+            while not done:
+                action = policy.snapshot.mean_action(np.asarray(observation, dtype=np.float64)[None])[0]
+                observation, reward, terminated, truncated, _ = env.step(scale_action(action, low, high))
+                returns[episode] += float(reward)
+                step += 1
+                done = bool(terminated or truncated)
+                if on_step is not None:
+                    on_step(env, step)
+            lengths[episode] = step
+    finally:
+        env.close()
+    return returns, lengths
+
+
+def evaluate(path: Path, episodes: int = 10, seed: int = 0) -> Evaluation:
+    """Deterministic returns of the policy in a run directory (latest checkpoint) or .pt file."""
+    if episodes < 1:
+        raise EvaluationError(f"episodes must be >= 1; got {episodes}")
+    policy = load_policy(path)
+    returns, lengths = run_episodes(policy, episodes, seed)
+    return Evaluation(policy, seed, returns, lengths)
+
+
+@dataclass(frozen=True)
+class Video:
+    """What record_video wrote."""
+
+    path: Path
+    frames: int
+    fps: float
+    backend: str
+    """The MUJOCO_GL backend that rendered it."""
+    returns: tuple[float, ...]
+    lengths: tuple[int, ...]
+
+
+def record_video(path: Path, out: Path, episodes: int = 1, seed: int = 0,
+                 size: tuple[int, int] = (480, 480)) -> Video:
+    """Render deterministic episodes seed.. of the policy at `path` to an H.264 MP4 at `out`.
+
+    Runs `python -m svrpo.evaluation` with MUJOCO_GL set for that child only, trying the
+    user's MUJOCO_GL if set, else GL_BACKENDS in order. About 30 frames per second of
+    simulated time are kept. EvaluationError (naming each backend's error) if none renders.
+    """
+    find_checkpoint(path)  # a bad path fails here, not in the child
+    width, height = size
+    if width < 16 or height < 16 or width % 2 or height % 2:
+        raise EvaluationError(f"video size must be even and >= 16 pixels; got {width}x{height}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    user_choice = os.environ.get("MUJOCO_GL")
+    errors = []
+    for backend in (user_choice,) if user_choice else GL_BACKENDS:
+        command = [sys.executable, "-m", "svrpo.evaluation", str(path), str(out), str(episodes),
+                   str(seed), str(width), str(height)]
+        child = subprocess.run(command, capture_output=True, text=True,
+                               env={**os.environ, "MUJOCO_GL": backend})
+        if child.returncode == 0:
+            result = json.loads(child.stdout.strip().splitlines()[-1])
+            return Video(out, int(result["frames"]), float(result["fps"]), backend,
+                         tuple(result["returns"]), tuple(result["lengths"]))
+        lines = child.stderr.strip().splitlines()
+        reason = lines[-1] if lines else f"exit code {child.returncode}"
+        if child.returncode != _NO_RENDERER:
+            raise EvaluationError(f"rendering with MUJOCO_GL={backend} failed: {reason}")
+        errors.append(f"{backend}: {reason}")
+    raise EvaluationError(f"no MuJoCo OpenGL backend could render ({'; '.join(errors)}); on Debian "
+                          "install one with: apt-get install -y libosmesa6")
+
+
+def _render_child(argv: list[str]) -> int:
+    """The child of record_video: render, encode, print one JSON line (frames, fps, returns)."""
+    import imageio.v2 as imageio
+
+    path, out, episodes, seed, width, height = Path(argv[0]), Path(argv[1]), *map(int, argv[2:])
+    policy = load_policy(path)
+    config = policy.config
+    env = gym.make(config.env_id, max_episode_steps=config.max_episode_steps, render_mode="rgb_array",
+                   width=width, height=height)
+    env.reset(seed=seed)
+    try:
+        env.render()
+    except Exception as error:  # each GL backend fails in its own way when it has no context
+        print(f"{type(error).__name__}: {error}", file=sys.stderr)
+        return _NO_RENDERER
+    env_fps = float(env.metadata.get("render_fps") or 30.0)
+    stride = max(1, round(env_fps / 30.0))
+    writer = imageio.get_writer(str(out), fps=env_fps / stride, codec="libx264", pixelformat="yuv420p",
+                                macro_block_size=2, ffmpeg_log_level="error")
+    frames = 0
+
+    def capture(environment: gym.Env, step: int) -> None:
+        nonlocal frames
+        if step % stride == 0:
+            frame = environment.render()
+            assert isinstance(frame, np.ndarray)  # render_mode="rgb_array": (height, width, 3) uint8
+            writer.append_data(frame)
+            frames += 1
+
+    try:
+        returns, lengths = run_episodes(policy, episodes, seed, env=env, on_step=capture)
+    finally:
+        writer.close()
+    print(json.dumps({"frames": frames, "fps": env_fps / stride, "returns": returns.tolist(),
+                      "lengths": lengths.tolist()}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_render_child(sys.argv[1:]))

@@ -1,0 +1,145 @@
+"""One run of a sweep: where it lives, whether it is finished, and how to train it.
+
+A run directory is self-describing: `prepare` writes config.json and run.json before anything
+is trained, so a backend only needs the directory to start or resume the run
+(`execute(run_dir)`, also `python -m svrpo.experiments.runner RUN_DIR`).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import platform
+import sys
+import time
+from dataclasses import dataclass
+from enum import Enum
+from pathlib import Path
+
+from svrpo import checkpoint
+from svrpo.config import Config, differing_fields
+from svrpo.experiments.specs import ExperimentSpec, SpecError
+
+
+class RunStatus(str, Enum):
+    """Where a run directory stands before a sweep starts it."""
+
+    NEW = "new"
+    """Nothing trained yet (no checkpoint)."""
+    PARTIAL = "partial"
+    """Some iterations trained: resumed from its last checkpoint."""
+    DONE = "done"
+    """progress.csv has config.iterations rows and the final checkpoint exists: skipped."""
+
+
+@dataclass(frozen=True)
+class RunJob:
+    """One (task, preset, seed) cell of a sweep grid."""
+
+    run_dir: Path
+    """ROOT/<experiment>-<scale>/<env>/<preset>/seed<k>/."""
+    config: Config
+    """The run's complete config (written to config.json)."""
+    preset: str
+    experiment: str
+    """The spec's name (figure1, ...); the scale is in config-independent run.json too."""
+    scale: str
+
+    @property
+    def sampling_cores(self) -> int:
+        """Cores the run keeps busy while sampling: one per worker (the main process if none)."""
+        return max(self.config.num_workers, 1)
+
+
+@dataclass(frozen=True)
+class JobResult:
+    """What became of one job."""
+
+    run_dir: Path
+    returncode: int
+    """0: finished; 130: interrupted (a checkpoint was written); anything else: failed."""
+    seconds: float
+    message: str = ""
+    """For a failure, the last line of the run's train.log."""
+
+    @property
+    def ok(self) -> bool:
+        """Whether the run finished."""
+        return self.returncode == 0
+
+
+def plan(spec: ExperimentSpec, root: Path) -> list[RunJob]:
+    """Every run of the grid, task-major then preset then seed (ConfigError for a bad config)."""
+    jobs = []
+    for task in spec.tasks:
+        for preset in spec.presets:
+            for seed in spec.seeds:
+                run_dir = root / spec.directory / task / preset / f"seed{seed}"
+                jobs.append(RunJob(run_dir, spec.config(task, preset, seed), preset, spec.name, spec.scale))
+    return jobs
+
+
+def completed_iterations(run_dir: Path) -> int:
+    """Complete rows of progress.csv (0 when absent); a half-written last line does not count."""
+    path = run_dir / "progress.csv"
+    if not path.is_file():
+        return 0
+    with open(path, newline="") as handle:
+        rows = list(csv.reader(handle))
+    if not rows:
+        return 0
+    width = len(rows[0])
+    return sum(1 for row in rows[1:] if len(row) == width)
+
+
+def status(job: RunJob) -> RunStatus:
+    """NEW, PARTIAL or DONE; SpecError if the directory holds a run with another config."""
+    config_path = job.run_dir / "config.json"
+    if not config_path.is_file():
+        return RunStatus.NEW
+    try:
+        existing = Config.from_json(config_path.read_text())
+    except (OSError, ValueError, TypeError) as error:  # ConfigError is a ValueError too
+        raise SpecError(f"cannot read {config_path}: {error}; delete that run directory") from None
+    changed = differing_fields(existing, job.config)
+    if changed:
+        detail = ", ".join(f"{name} {old!r} there, {new!r} here" for name, (old, new) in changed.items())
+        raise SpecError(f"{job.run_dir} holds a run with another config ({detail}); "
+                        "use another --root or delete that directory")
+    iterations = job.config.iterations
+    final = checkpoint.checkpoint_path(job.run_dir / "checkpoints", iterations)
+    if final.is_file() and completed_iterations(job.run_dir) >= iterations:
+        return RunStatus.DONE
+    if checkpoint.list_checkpoints(job.run_dir / "checkpoints"):
+        return RunStatus.PARTIAL
+    return RunStatus.NEW
+
+
+def prepare(job: RunJob) -> None:
+    """Create the run directory with config.json and run.json (kept if already there)."""
+    job.run_dir.mkdir(parents=True, exist_ok=True)
+    config_path = job.run_dir / "config.json"
+    if not config_path.is_file():
+        _write_atomic(config_path, job.config.to_json() + "\n")
+    meta_path = job.run_dir / "run.json"
+    if not meta_path.is_file():
+        meta = {"preset": job.preset, "scale": job.scale, "experiment": job.experiment,
+                "argv": sys.argv[1:], "python": platform.python_version()}
+        _write_atomic(meta_path, json.dumps(meta, indent=2) + "\n")
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """A crash leaves the old file or the new one, never half of it."""
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text(text)
+    temporary.replace(path)
+
+
+def execute(run_dir: Path) -> JobResult:
+    """Train (or resume) the run in `run_dir` in this process, from its config.json."""
+    from svrpo.algorithm import train
+
+    config = Config.from_json((run_dir / "config.json").read_text())
+    started = time.perf_counter()
+    train(config, run_dir, resume=True, show_progress=False)
+    return JobResult(run_dir, 0, time.perf_counter() - started)

@@ -1,0 +1,88 @@
+"""Per-experiment reports from sweep run directories: the paper-style figure, the variance
+panel and the table (markdown and CSV). Reads run directories only."""
+
+from __future__ import annotations
+
+import os
+from collections import defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from svrpo.experiments.specs import NAMED_EXPERIMENTS, PAPER_TASKS
+from svrpo.experiments.table import summarize, write_csv, write_markdown
+from svrpo.plotting import RunCurve, load_curve, plot_panels
+
+REPORT_FILES = ("returns.png", "variance_ratio.png", "table.md", "table.csv")
+
+Nested = dict[str, dict[str, list[RunCurve]]]
+
+
+def group_by_experiment(run_dirs: Sequence[Path]) -> tuple[dict[tuple[str, str], list[Path]], list[Path]]:
+    """({(experiment, scale): run dirs} for sweep runs, the other run dirs) from run.json."""
+    experiments: dict[tuple[str, str], list[Path]] = defaultdict(list)
+    plain: list[Path] = []
+    for run_dir in run_dirs:
+        curve = load_curve(run_dir)
+        if curve.experiment is None:
+            plain.append(run_dir)
+        else:
+            experiments[(curve.experiment, curve.scale or "unknown")].append(run_dir)
+    return dict(experiments), plain
+
+
+def default_report_dir(run_dirs: Sequence[Path]) -> Path:
+    """ROOT/<experiment>-<scale>/ for sweep-laid-out runs (.../<env>/<preset>/seed<k>), else
+    the runs' common parent."""
+    tops = {run_dir.parents[2] for run_dir in run_dirs if len(run_dir.parents) > 2}
+    if len(tops) == 1:
+        return tops.pop()
+    return Path(os.path.commonpath([str(run_dir.parent) for run_dir in run_dirs]))
+
+
+def write_report(experiment: str, scale: str, run_dirs: Sequence[Path], out_dir: Path,
+                 smoothing: int = 1) -> list[Path]:
+    """returns.png, variance_ratio.png (if any run logged the probe), table.md, table.csv."""
+    returns = _nested([load_curve(d, "average_return") for d in run_dirs], experiment)
+    variance = _nested([load_curve(d, "variance_ratio") for d in run_dirs], experiment)
+    title = f"{experiment} ({scale} scale)"
+    written = [plot_panels(returns, out_dir / "returns.png", "average return (training episodes)",
+                           smoothing, title=title)]
+    probed = {task: {preset: runs for preset, runs in presets.items() if _has_positive(runs)}
+              for task, presets in variance.items()}
+    probed = {task: presets for task, presets in probed.items() if presets}
+    if probed:
+        written.append(plot_panels(probed, out_dir / "variance_ratio.png", "variance ratio SVRG / SGD",
+                                   x_axis="iteration", log_scale=True, title=title, reference=1.0))
+    rows = summarize(returns, variance)
+    written.append(write_markdown(rows, out_dir / "table.md", f"{title}: final return and samples "
+                                  "to reach TRPO's final return"))
+    written.append(write_csv(rows, out_dir / "table.csv"))
+    return written
+
+
+def _nested(curves: Sequence[RunCurve], experiment: str) -> Nested:
+    """task -> preset -> curves by seed, in the named experiment's order (else sorted, TRPO last);
+    runs that logged no iteration are left out."""
+    groups: Nested = defaultdict(lambda: defaultdict(list))
+    for curve in sorted(curves, key=lambda c: c.seed):
+        if len(curve.env_steps):
+            groups[curve.env_id][curve.label].append(curve)
+    spec = NAMED_EXPERIMENTS.get(experiment)
+    task_order = spec.tasks if spec else PAPER_TASKS
+    preset_order = spec.presets if spec else ()
+
+    def task_key(task: str) -> tuple[int, str]:
+        return (task_order.index(task) if task in task_order else len(task_order), task)
+
+    def preset_key(preset: str) -> tuple[int, bool, str]:
+        rank = preset_order.index(preset) if preset in preset_order else len(preset_order)
+        return (rank, preset == "trpo", preset)
+
+    return {task: {preset: groups[task][preset] for preset in sorted(groups[task], key=preset_key)}
+            for task in sorted(groups, key=task_key)}
+
+
+def _has_positive(runs: Sequence[RunCurve]) -> bool:
+    return any(bool(np.any(np.isfinite(run.values) & (run.values > 0))) for run in runs)

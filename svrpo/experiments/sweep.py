@@ -1,0 +1,107 @@
+"""Run a sweep: plan the grid, skip finished runs, resume partial ones, show runs done / total."""
+
+from __future__ import annotations
+
+import sys
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+from tqdm import tqdm
+
+from svrpo.envs import env_info
+from svrpo.experiments.backends import Backend
+from svrpo.experiments.jobs import JobResult, RunJob, RunStatus, plan, prepare, status
+from svrpo.experiments.specs import ExperimentSpec
+
+
+@dataclass(frozen=True)
+class SweepSummary:
+    """How many runs of the grid were skipped, resumed, started fresh, finished and failed."""
+
+    total: int
+    skipped: int
+    """Already finished before this sweep (nothing was written to them)."""
+    resumed: int
+    started: int
+    failed: tuple[JobResult, ...] = ()
+
+    @property
+    def finished(self) -> int:
+        """Runs finished by this sweep."""
+        return self.resumed + self.started - len(self.failed)
+
+    def line(self) -> str:
+        """One line for the end of the sweep."""
+        failed = f", {len(self.failed)} failed" if self.failed else ""
+        return (f"{self.total} runs: {self.skipped} already done (skipped), {self.resumed} resumed, "
+                f"{self.started} started; {self.finished} finished{failed}")
+
+
+def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool = False) -> SweepSummary:
+    """Train every run of `spec` under `root` that is not finished; return the counts.
+
+    Checks every config, task and existing run directory before anything is written or
+    started (ConfigError, EnvError, SpecError). A finished run (progress.csv with
+    config.iterations rows and the final checkpoint) is skipped; any other run with a checkpoint
+    resumes from its latest one; the rest start from scratch.
+    """
+    jobs = plan(spec, root)
+    for task in spec.tasks:
+        env_info(task)  # EnvError for an unknown task, before anything is written
+    statuses = [status(job) for job in jobs]
+    counts = Counter(statuses)
+    todo = [job for job, state in zip(jobs, statuses, strict=True) if state is not RunStatus.DONE]
+    _say(f"{spec.directory}: {len(spec.tasks)} tasks x {len(spec.presets)} presets x "
+         f"{len(spec.seeds)} seeds = {len(jobs)} runs under {root / spec.directory}: "
+         f"{counts[RunStatus.DONE]} done, {counts[RunStatus.PARTIAL]} to resume, "
+         f"{counts[RunStatus.NEW]} new")
+    summary = SweepSummary(len(jobs), counts[RunStatus.DONE], counts[RunStatus.PARTIAL],
+                           counts[RunStatus.NEW])
+    if dry_run:
+        for job, state in zip(jobs, statuses, strict=True):
+            print(f"{state.value:8s} {job.run_dir}  ({job.config.iterations} iterations x "
+                  f"N={job.config.batch_size}, {job.config.num_workers} workers)")
+        return SweepSummary(len(jobs), counts[RunStatus.DONE], 0, 0)
+    if not todo:
+        _say("nothing to run")
+        return summary
+    for job in todo:
+        prepare(job)
+    _say(f"running {len(todo)} runs: {backend.describe()}; each run logs to RUN_DIR/train.log")
+    failed = _run_with_progress(todo, backend, len(jobs), counts[RunStatus.DONE], root)
+    return SweepSummary(summary.total, summary.skipped, summary.resumed, summary.started, tuple(failed))
+
+
+def _run_with_progress(todo: list[RunJob], backend: Backend, total: int, done: int,
+                       root: Path) -> list[JobResult]:
+    bar = tqdm(total=total, initial=done, unit="run", desc="runs done", file=sys.stderr,
+               dynamic_ncols=True, mininterval=0)
+    failed: list[JobResult] = []
+
+    def on_done(result: JobResult) -> None:
+        name = _relative(result.run_dir, root)
+        if result.ok:
+            bar.write(f"finished {name} in {result.seconds:.0f} s", file=sys.stderr)
+        else:
+            failed.append(result)
+            bar.write(f"FAILED {name} (exit {result.returncode}): {result.message} "
+                      f"[see {result.run_dir / 'train.log'}]", file=sys.stderr)
+        bar.update(1)
+
+    try:
+        backend.run_all(todo, on_done)
+    finally:
+        bar.close()
+    return failed
+
+
+def _relative(path: Path, root: Path) -> str:
+    try:
+        return str(path.relative_to(root))
+    except ValueError:
+        return str(path)
+
+
+def _say(text: str) -> None:
+    print(text, file=sys.stderr)

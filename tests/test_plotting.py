@@ -1,0 +1,163 @@
+"""Reports on synthetic run directories with known numbers: the table's final returns, CIs and
+samples-to-TRPO's-final-return are checked against hand-computed values."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from svrpo.cli import main
+from svrpo.config import make_preset
+from svrpo.experiments.report import group_by_experiment
+from svrpo.experiments.table import final_window, first_reaching
+from svrpo.plotting import find_run_dirs
+
+PNG = b"\x89PNG\r\n\x1a\n"
+ITERATIONS = 20  # window k = ceil(0.1 * 20) = 2 iterations
+STEPS_PER_ITERATION = 100
+
+
+def write_run(root: Path, task: str, preset: str, seed: int, returns: list[float],
+              ratios: list[float] | None = None, experiment: str | None = "figure2") -> Path:
+    """A run directory as `svrpo sweep` lays it out, with the given curve."""
+    run_dir = (root / "figure2-laptop" if experiment else root) / task / preset / f"seed{seed}"
+    run_dir.mkdir(parents=True)
+    (run_dir / "config.json").write_text(make_preset(preset, task, "laptop").replace(seed=seed).to_json())
+    meta = {"preset": preset, "scale": "laptop"} | ({"experiment": experiment} if experiment else {})
+    (run_dir / "run.json").write_text(json.dumps(meta))
+    with open(run_dir / "progress.csv", "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["iteration", "env_steps", "average_return", "variance_ratio"])
+        for index, value in enumerate(returns):
+            ratio = "" if ratios is None else repr(float(ratios[index]))
+            cell = "" if math.isnan(value) else repr(float(value))
+            writer.writerow([index + 1, (index + 1) * STEPS_PER_ITERATION, cell, ratio])
+    return run_dir
+
+
+def write_experiment(root: Path) -> None:
+    """figure2 on Swimmer (svrpo, svrpo-sgd, trpo) and Walker2d (svrpo only), 2 seeds each.
+
+    Swimmer, with k = 2 (the last 10% of 20 iterations):
+    * trpo: seed 0 returns 10 i, seed 1 10 i + 10 -> finals (190+200)/2 = 195 and 205: mean 200,
+      bootstrap CI [195, 205]; the seed-mean smoothed curve is 10 i, >= 200 first at i = 20
+      (2000 steps): 100% of TRPO's 2000 steps.
+    * svrpo: seed 0 20 i (iteration 5 empty), seed 1 20 i + 20 -> smoothed 20 i - 10 and
+      20 i + 10 (i >= 2; seed 0 reads 80 at i = 5 and 120 at i = 6), seed mean 20 i except
+      95 (i = 5) and 125 (i = 6): first >= 200 at i = 10 -> 1000 steps = 50%. Finals 390, 410.
+    * svrpo-sgd: 50 throughout -> final 50 [50, 50], never reaches 200: "not reached".
+    Walker2d has no TRPO runs: "n/a".
+    """
+    i = np.arange(1, ITERATIONS + 1, dtype=float)
+    svrpo_seed0 = 20 * i
+    svrpo_seed0[4] = math.nan
+    swimmer = {
+        "trpo": [10 * i, 10 * i + 10],
+        "svrpo": [svrpo_seed0, 20 * i + 20],
+        "svrpo-sgd": [np.full(ITERATIONS, 50.0)] * 2,
+    }
+    ratios = {"svrpo": 0.5, "svrpo-sgd": 2.0}
+    for preset, curves in swimmer.items():
+        for seed, curve in enumerate(curves):
+            ratio = [ratios[preset]] * ITERATIONS if preset in ratios else None
+            write_run(root, "Swimmer-v5", preset, seed, list(curve), ratio)
+    for seed in (0, 1):
+        write_run(root, "Walker2d-v5", "svrpo", seed, list(5 * i + seed), [0.25] * ITERATIONS)
+
+
+def read_table(path: Path) -> dict[tuple[str, str], dict[str, str]]:
+    with open(path, newline="") as handle:
+        return {(row["task"], row["preset"]): row for row in csv.DictReader(handle)}
+
+
+def test_final_window_and_first_reaching() -> None:
+    assert [final_window(n) for n in (1, 5, 10, 11, 20, 200, 1000)] == [1, 1, 1, 2, 2, 20, 100]
+    steps = np.array([100.0, 200.0, 300.0, 400.0])
+    assert first_reaching(steps, np.array([1.0, np.nan, 3.0, 5.0]), 3.0) == 300.0
+    assert math.isnan(first_reaching(steps, np.array([1.0, 2.0, 2.5, 2.9]), 3.0))
+    assert math.isnan(first_reaching(steps, np.array([1.0, 2.0, 2.5, 2.9]), math.nan))
+
+
+def test_report_table_matches_hand_computed_values(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    root = tmp_path / "runs"
+    write_experiment(root)
+    assert main(["plot", str(root)]) == 0
+    report = root / "figure2-laptop"
+    out = capsys.readouterr().out
+    for name in ("returns.png", "variance_ratio.png", "table.md", "table.csv"):
+        assert f"wrote {report / name}" in out
+    for name in ("returns.png", "variance_ratio.png"):
+        assert (report / name).read_bytes()[:8] == PNG
+    table = read_table(report / "table.csv")
+    assert list(table) == [("Swimmer-v5", "svrpo"), ("Swimmer-v5", "svrpo-sgd"), ("Swimmer-v5", "trpo"),
+                           ("Walker2d-v5", "svrpo")]  # the paper's task order, TRPO last
+
+    def numbers(task: str, preset: str, *columns: str) -> list[float]:
+        return [float(table[(task, preset)][c]) if table[(task, preset)][c] else math.nan for c in columns]
+
+    final = ("final_return", "final_return_low", "final_return_high")
+    reach = ("steps_to_trpo_final", "percent_of_trpo_steps")
+    assert numbers("Swimmer-v5", "trpo", *final, *reach) == [200.0, 195.0, 205.0, 2000.0, 100.0]
+    assert numbers("Swimmer-v5", "svrpo", *final, *reach) == [400.0, 390.0, 410.0, 1000.0, 50.0]
+    sgd = numbers("Swimmer-v5", "svrpo-sgd", *final, *reach)
+    assert sgd[:3] == [50.0, 50.0, 50.0] and all(math.isnan(v) for v in sgd[3:])
+    assert table[("Swimmer-v5", "svrpo-sgd")]["samples_to_trpo_final_text"] == "not reached"
+    assert table[("Walker2d-v5", "svrpo")]["samples_to_trpo_final_text"] == "n/a"
+    # Walker2d svrpo: 5 i + seed -> finals 97.5 and 98.5.
+    assert numbers("Walker2d-v5", "svrpo", *final) == [98.0, 97.5, 98.5]
+    assert numbers("Swimmer-v5", "svrpo", "median_variance_ratio") == [0.5]
+    assert math.isnan(numbers("Swimmer-v5", "trpo", "median_variance_ratio")[0])
+    svrpo = table[("Swimmer-v5", "svrpo")]
+    assert (svrpo["seeds"], svrpo["iterations"], svrpo["env_steps"]) == ("2", "20", "2000")
+
+    markdown = (report / "table.md").read_text()
+    assert "| Swimmer-v5 | svrpo | 2 | 2,000 | 400.0 [390.0, 410.0] | 50% (1,000 steps) | 0.5 |" in markdown
+    assert "| Swimmer-v5 | trpo | 2 | 2,000 | 200.0 [195.0, 205.0] | 100% (2,000 steps) |  |" in markdown
+    assert "| Swimmer-v5 | svrpo-sgd | 2 | 2,000 | 50.0 [50.0, 50.0] | not reached | 2 |" in markdown
+    assert "| Walker2d-v5 | svrpo | 2 | 2,000 | 98.0 [97.5, 98.5] | n/a | 0.25 |" in markdown
+
+
+def test_one_seed_has_no_interval_and_short_runs_compare_on_common_iterations(tmp_path: Path) -> None:
+    root = tmp_path / "runs"
+    write_run(root, "Swimmer-v5", "trpo", 0, [1.0, 2.0, 3.0, 4.0])
+    write_run(root, "Swimmer-v5", "svrpo", 0, [5.0, 6.0, 7.0, 8.0])
+    write_run(root, "Swimmer-v5", "svrpo", 1, [5.0, 6.0])  # an unfinished seed
+    assert main(["plot", str(root), "--report-dir", str(tmp_path / "out")]) == 0
+    table = read_table(tmp_path / "out" / "figure2-laptop" / "table.csv")
+    trpo, svrpo = table[("Swimmer-v5", "trpo")], table[("Swimmer-v5", "svrpo")]
+    assert (trpo["final_return"], trpo["final_return_low"], trpo["final_return_text"]) == ("4.0", "", "4.0")
+    # svrpo is compared on the 2 iterations both seeds reached: final 6, and it is above TRPO's
+    # final 4 from its first iteration (100 steps of TRPO's 400 = 25%).
+    assert (svrpo["iterations"], svrpo["final_return"]) == ("2", "6.0")
+    assert svrpo["percent_of_trpo_steps"] == "25.0"
+
+
+def test_plot_run_dirs_and_plain_roots_work_as_before(tmp_path: Path) -> None:
+    root = tmp_path / "runs"
+    write_experiment(root)
+    one = root / "figure2-laptop" / "Swimmer-v5" / "svrpo" / "seed0"
+    assert main(["plot", str(one)]) == 0
+    assert (one / "learning_curve.png").read_bytes()[:8] == PNG
+    assert not (root / "figure2-laptop" / "table.csv").exists()  # a run dir is not a root
+
+    plain = tmp_path / "plain"
+    write_run(plain, "Hopper-v5", "svrpo", 0, [1.0, 2.0], experiment=None)
+    write_run(plain, "Hopper-v5", "trpo", 0, [1.0, 2.0], experiment=None)
+    assert main(["plot", str(plain)]) == 0
+    assert (plain / "learning_curve.png").read_bytes()[:8] == PNG
+    assert not list(plain.rglob("table.*"))
+    experiments, others = group_by_experiment(find_run_dirs([root, plain]))
+    assert [len(v) for v in experiments.values()] == [8] and len(others) == 2
+
+
+def test_plot_bad_input_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["plot", str(tmp_path / "missing")]) == 2
+    assert main(["plot", str(tmp_path)]) == 2
+    assert "no run directory" in capsys.readouterr().err

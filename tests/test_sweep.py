@@ -1,0 +1,223 @@
+"""Sweeps: the paper's grids, YAML specs and their errors, core-aware scheduling, and a real
+tiny sweep that skips finished runs and resumes an interrupted one."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from svrpo.cli import main
+from svrpo.config import make_preset
+from svrpo.experiments import NAMED_EXPERIMENTS, LocalBackend, SpecError, load_spec, plan
+from svrpo.logging import WALL_CLOCK_COLUMNS
+
+TINY_YAML = """\
+name: tiny
+tasks: [InvertedPendulum-v5]
+presets: [svrpo, trpo]
+seeds: 2
+scale: laptop
+overrides:
+  batch_size: 1000
+  total_steps: 2000
+  minibatch_size: 250
+  num_workers: 1
+  envs_per_worker: 2
+  eval_every: 0
+  checkpoint_every: 1
+"""
+
+
+@pytest.mark.parametrize(
+    ("name", "tasks", "presets"),
+    [
+        ("figure1", ["Swimmer-v5", "Walker2d-v5", "Hopper-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5"],
+         ["svrpo", "svrpo-loglik", "trpo"]),
+        ("figure2", ["Swimmer-v5", "Walker2d-v5"], ["svrpo", "svrpo-sgd", "trpo"]),
+        ("figure3", ["Swimmer-v5", "Walker2d-v5"], ["svrpo", "svrpo-identity", "trpo"]),
+    ],
+)
+@pytest.mark.parametrize("scale", ["laptop", "paper"])
+def test_named_experiments_are_the_papers_grids(name: str, tasks: list[str], presets: list[str],
+                                                scale: str, tmp_path: Path) -> None:
+    spec = load_spec(name).with_changes(scale=scale)
+    assert list(spec.tasks) == tasks and list(spec.presets) == presets
+    assert spec.seeds == (0, 1, 2, 3, 4)
+    jobs = plan(spec, tmp_path)
+    assert len(jobs) == len(tasks) * len(presets) * 5
+    for job in jobs:
+        task, preset, seed_dir = job.run_dir.relative_to(tmp_path / f"{name}-{scale}").parts
+        seed = int(seed_dir.removeprefix("seed"))
+        assert job.config == make_preset(preset, task, scale).replace(seed=seed)  # type: ignore[arg-type]
+        assert (job.preset, job.experiment, job.scale) == (preset, name, scale)
+
+
+def test_yaml_spec_and_command_line_changes(tmp_path: Path) -> None:
+    path = tmp_path / "grid.yaml"
+    path.write_text("tasks: Hopper-v5\npresets: [svrpo-sgd]\nseeds: [3, 7]\nscale: paper\n"
+                    "overrides: {hidden_sizes: '32,32', max_kl: 0.02}\n")
+    spec = load_spec(str(path))
+    assert (spec.name, spec.tasks, spec.presets, spec.seeds, spec.scale) == (
+        "grid", ("Hopper-v5",), ("svrpo-sgd",), (3, 7), "paper")
+    assert spec.overrides == {"hidden_sizes": (32, 32), "max_kl": 0.02}
+    changed = spec.with_changes(scale="laptop", seeds=2, overrides={"max_kl": "0.03", "cg_iters": "5"})
+    assert changed.seeds == (0, 1) and changed.scale == "laptop"
+    config = changed.config("Hopper-v5", "svrpo-sgd", 1)
+    assert (config.max_kl, config.cg_iters, config.hidden_sizes, config.seed) == (0.03, 5, (32, 32), 1)
+    assert config.batch_size == make_preset("svrpo-sgd", "Hopper-v5", "laptop").batch_size
+
+
+@pytest.mark.parametrize(
+    ("spec_text", "args", "message"),
+    [
+        (None, ["figure9"], "unknown experiment 'figure9'"),
+        (None, ["missing.yaml"], "does not exist"),
+        ("tasks: [Hopper-v5\n", [], "not valid YAML"),
+        ("- just\n- a list\n", [], "must be a mapping"),
+        ("tasks: [Hopper-v5]\npresets: [svrpo]\ncolour: red\n", [], "unknown key(s) colour"),
+        ("tasks: [Hopper-v5]\n", [], "missing 'presets'"),
+        ("tasks: [Hopper-v5]\npresets: [svrpoo]\n", [], "unknown preset 'svrpoo'"),
+        ("tasks: [Hopper-v5]\npresets: [svrpo]\nseeds: 0\n", [], "seeds must be >= 1"),
+        ("tasks: [Hopper-v5]\npresets: [svrpo]\nscale: huge\n", [], "unknown scale"),
+        ("tasks: [Hopper-v5]\npresets: [svrpo]\noverrides: {env_id: Ant-v5}\n", [], "set per run"),
+        ("tasks: [Hoper-v5]\npresets: [svrpo]\n", [], "Hopper-v5"),
+        (None, ["figure2", "--seed", "3"], "'seed' is set per run"),
+        (None, ["figure2", "--max_kll", "0.1"], "did you mean max_kl"),
+        (None, ["figure2", "--jobs", "many"], "--jobs"),
+        (None, ["figure2", "--minibatch_size", "999999"], "minibatch_size"),
+    ],
+)
+def test_bad_sweep_input_one_line_exit_2_nothing_written(
+    spec_text: str | None, args: list[str], message: str, tmp_path: Path,
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    if spec_text is not None:
+        (tmp_path / "spec.yaml").write_text(spec_text)
+        args = ["spec.yaml", *args]
+    root = tmp_path / "runs"
+    assert main(["sweep", *args, "--root", str(root)]) == 2
+    error = capsys.readouterr().err
+    assert message in error and len(error.strip().splitlines()) == 1, error
+    assert not root.exists()
+
+
+def test_load_spec_errors_are_spec_errors() -> None:
+    with pytest.raises(SpecError, match="figure1, figure2, figure3"):
+        load_spec("nothing")
+    assert set(NAMED_EXPERIMENTS) == {"figure1", "figure2", "figure3"}
+
+
+def test_local_backend_fits_sampling_workers_into_cores() -> None:
+    def job(workers: int) -> SimpleNamespace:
+        return SimpleNamespace(sampling_cores=max(workers, 1))
+
+    def running(*workers: int) -> list[SimpleNamespace]:
+        return [SimpleNamespace(job=job(w)) for w in workers]
+
+    two_cores = LocalBackend(cores=2)
+    assert two_cores._fits(job(2), running())  # type: ignore[arg-type]
+    assert not two_cores._fits(job(2), running(2))  # type: ignore[arg-type]
+    assert two_cores._fits(job(1), running(1))  # type: ignore[arg-type]
+    assert not two_cores._fits(job(1), running(1, 1))  # type: ignore[arg-type]
+    assert two_cores._fits(job(0), running(1))  # type: ignore[arg-type]  # W = 0 samples in-process
+    assert LocalBackend(cores=1)._fits(job(4), running())  # type: ignore[arg-type]  # always one
+    assert LocalBackend(cores=2, max_parallel=3)._fits(job(2), running(2, 2))  # type: ignore[arg-type]
+    assert not LocalBackend(cores=2, max_parallel=1)._fits(job(1), running(1))  # type: ignore[arg-type]
+
+
+def _sweep(spec: Path, root: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "svrpo.cli", "sweep", str(spec), "--root", str(root)],
+                          capture_output=True, text=True, timeout=600, cwd=spec.parent)
+
+
+def _rows(run_dir: Path) -> list[dict[str, str]]:
+    with open(run_dir / "progress.csv", newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def _without_clock(rows: list[dict[str, str]]) -> list[dict[str, str]]:
+    return [{k: v for k, v in row.items() if k not in WALL_CLOCK_COLUMNS} for row in rows]
+
+
+def _snapshot(root: Path) -> dict[Path, int]:
+    return {path: path.stat().st_mtime_ns for path in root.rglob("*")}
+
+
+def test_sweep_runs_the_grid_skips_finished_runs_and_resumes_interrupted_ones(tmp_path: Path) -> None:
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY_YAML)
+    root = tmp_path / "runs"
+    first = _sweep(spec, root)
+    assert first.returncode == 0, first.stderr
+    assert "4 runs: 0 already done (skipped), 0 resumed, 4 started; 4 finished" in first.stdout
+    assert "4/4" in first.stderr  # overall progress: runs done / total
+    base = root / "tiny-laptop" / "InvertedPendulum-v5"
+    run_dirs = [base / preset / f"seed{seed}" for preset in ("svrpo", "trpo") for seed in (0, 1)]
+    original = {}
+    for run_dir in run_dirs:
+        rows = _rows(run_dir)
+        assert [int(r["env_steps"]) for r in rows] == [1000, 2000]
+        meta = json.loads((run_dir / "run.json").read_text())
+        assert (meta["preset"], meta["scale"], meta["experiment"]) == (run_dir.parent.name, "laptop", "tiny")
+        assert (run_dir / "checkpoints" / "iter_000002.pt").is_file()
+        original[run_dir] = rows
+
+    before = _snapshot(root)
+    second = _sweep(spec, root)
+    assert second.returncode == 0, second.stderr
+    assert "4 already done (skipped), 0 resumed, 0 started; 0 finished" in second.stdout
+    assert _snapshot(root) == before, "a finished sweep was touched again"
+
+    # Interrupt one run after iteration 1 (last checkpoint iter 1, a half-written CSV line) and
+    # lose another completely.
+    partial, lost = base / "svrpo" / "seed0", base / "trpo" / "seed1"
+    (partial / "checkpoints" / "iter_000002.pt").unlink()
+    lines = (partial / "progress.csv").read_text().splitlines()
+    (partial / "progress.csv").write_text("\n".join(lines[:2]) + "\n" + lines[2][:15])
+    shutil.rmtree(lost)
+    finished = [base / "svrpo" / "seed1", base / "trpo" / "seed0"]
+    untouched = {run_dir: _snapshot(run_dir) for run_dir in finished}
+    third = _sweep(spec, root)
+    assert third.returncode == 0, third.stderr
+    assert "2 already done (skipped), 1 resumed, 1 started; 2 finished" in third.stdout
+    for run_dir in run_dirs:
+        rows = _rows(run_dir)
+        assert len(rows) == 2 and (run_dir / "checkpoints" / "iter_000002.pt").is_file()
+        # Resumed and restarted runs continue exactly as the uninterrupted run did.
+        assert _without_clock(rows) == _without_clock(original[run_dir])
+    assert _rows(partial)[0] == original[partial][0], "iteration 1 was re-run instead of resumed"
+    assert all(_snapshot(run_dir) == files for run_dir, files in untouched.items())
+
+
+def test_sigterm_stops_the_sweep_and_its_runs_with_a_checkpoint(tmp_path: Path) -> None:
+    import signal
+    import time
+
+    from svrpo.experiments import RunStatus, status
+
+    spec = tmp_path / "long.yaml"
+    spec.write_text(TINY_YAML.replace("presets: [svrpo, trpo]", "presets: [trpo]")
+                    .replace("seeds: 2", "seeds: 1").replace("total_steps: 2000", "total_steps: 200000"))
+    root = tmp_path / "runs"
+    sweep = subprocess.Popen([sys.executable, "-m", "svrpo.cli", "sweep", str(spec), "--root", str(root)],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    run_dir = root / "tiny-laptop" / "InvertedPendulum-v5" / "trpo" / "seed0"
+    deadline = time.monotonic() + 120
+    while not (run_dir / "checkpoints" / "iter_000002.pt").is_file() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    sweep.send_signal(signal.SIGTERM)
+    _, stderr = sweep.communicate(timeout=120)
+    assert sweep.returncode == 130, stderr
+    assert "run the same command again to resume" in stderr
+    assert "interrupted" in (run_dir / "train.log").read_text()
+    job = plan(load_spec(str(spec)), root)[0]
+    assert status(job) is RunStatus.PARTIAL
+    assert 2 <= len(_rows(run_dir)) < 200
