@@ -149,48 +149,52 @@ def run_soak(args: argparse.Namespace, work: Path, iteration_s: float, startup_s
     launched_at, rows_at_launch = time.monotonic(), 0
     faults: list[dict[str, Any]] = []
     launches = 1
-    while len(faults) < args.faults:
-        kind = rng.choices(FAULT_KINDS, FAULT_WEIGHTS)[0]
-        if kind == "startup" and logged_rows(run_dir) > rows_at_launch:
-            kind = "trainer"  # this launch is past its start-up already (after a worker fault)
-        if kind == "startup":
-            delay = rng.uniform(0.0, startup_s)
-            while proc.poll() is None and time.monotonic() < launched_at + delay:
-                time.sleep(0.01)
-        else:
-            delay = rng.uniform(0.0, 2.0 * iteration_s)
-            while proc.poll() is None and logged_rows(run_dir) <= rows_at_launch:
-                time.sleep(0.01)  # wait for progress, so every launch moves the run forward
-            time.sleep(delay)
-        if proc.poll() is not None:  # finished (or failed) before the fault could land
-            break
-        rows = logged_rows(run_dir)
-        event: dict[str, Any] = {"kind": kind, "delay_s": round(delay, 3), "rows_logged": rows,
-                                 "at_s": round(time.monotonic() - started, 1)}
-        if kind == "worker":
-            pids = worker_pids(proc.pid)
-            if not pids:
-                continue  # between worker sets (a restart in progress): draw again
-            victim = rng.choice(pids)
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(victim, signal.SIGKILL)
-            event["pid"] = victim
+    try:
+        while len(faults) < args.faults:
+            kind = rng.choices(FAULT_KINDS, FAULT_WEIGHTS)[0]
+            if kind == "startup" and logged_rows(run_dir) > rows_at_launch:
+                kind = "trainer"  # this launch is past its start-up already (after a worker fault)
+            if kind == "startup":
+                delay = rng.uniform(0.0, startup_s)
+                while proc.poll() is None and time.monotonic() < launched_at + delay:
+                    time.sleep(0.01)
+            else:
+                delay = rng.uniform(0.0, 2.0 * iteration_s)
+                while proc.poll() is None and logged_rows(run_dir) <= rows_at_launch:
+                    time.sleep(0.01)  # wait for progress, so every launch moves the run forward
+                time.sleep(delay)
+            if proc.poll() is not None:  # finished (or failed) before the fault could land
+                break
+            event: dict[str, Any] = {"kind": kind, "delay_s": round(delay, 3),
+                                     "rows_logged": logged_rows(run_dir),
+                                     "at_s": round(time.monotonic() - started, 1)}
+            if kind == "worker":
+                pids = worker_pids(proc.pid)
+                if not pids:
+                    continue  # between worker sets (a restart in progress): draw again
+                event["pid"] = victim = rng.choice(pids)
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(victim, signal.SIGKILL)
+                faults.append(event)
+                # Let the trainer replace its workers and finish the iteration (and print its
+                # warning) before the next fault.
+                rows_at_launch = logged_rows(run_dir)
+                while proc.poll() is None and logged_rows(run_dir) <= rows_at_launch:
+                    time.sleep(0.01)
+                continue
+            proc.kill()
+            proc.wait()
+            reap(proc)
             faults.append(event)
-            # Let the trainer replace its workers and finish the iteration (and print its warning)
-            # before the next fault.
-            rows_at_launch = logged_rows(run_dir)
-            while proc.poll() is None and logged_rows(run_dir) <= rows_at_launch:
-                time.sleep(0.01)
-            continue
-        proc.kill()
+            if (run_dir / "config.json").exists():
+                proc = launch(["train", "--resume", str(run_dir), "--no-progress"], log)
+            else:  # killed before the run directory was set up: start it again, as a user would
+                proc = launch([*train_args(args, run_dir), "--overwrite"], log)
+            launches += 1
+            launched_at, rows_at_launch = time.monotonic(), logged_rows(run_dir)
         proc.wait()
+    finally:
         reap(proc)
-        faults.append(event)
-        proc = launch(["train", "--resume", str(run_dir), "--no-progress"], log)
-        launches += 1
-        launched_at, rows_at_launch = time.monotonic(), logged_rows(run_dir)
-    proc.wait()
-    reap(proc)
     return {"run_dir": run_dir, "faults": faults, "launches": launches, "returncode": proc.returncode,
             "seconds": time.monotonic() - started, "log": log}
 
@@ -206,6 +210,8 @@ def main() -> None:
     parser.add_argument("--keep", action="store_true", help="keep the two run directories")
     args = parser.parse_args()
 
+    # SIGTERM runs the finally blocks below (process groups reaped, directories removed).
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     work = Path(tempfile.mkdtemp(prefix="svrpo-soak-"))
     try:
         reference, reference_s, first_row_s = run_reference(args, work)

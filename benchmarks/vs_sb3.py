@@ -134,14 +134,23 @@ def main() -> None:
         "machine": machine_info(), "versions": versions(), "iterations": ITERATIONS,
         "env_steps": ITERATIONS * 2048, "our_config": OUR_CONFIG, "runs": [], "summary": {},
     }
+    if args.out.exists():  # resume: keep finished runs, redo only the missing ones
+        earlier = json.loads(args.out.read_text())
+        report["runs"], report["summary"] = earlier.get("runs", []), earlier.get("summary", {})
     for env_id in args.envs:
         for seed in args.seeds:
             for library in ("svrpo", "sb3-contrib"):
+                done = {(r["library"], r["env"], r["seed"]) for r in report["runs"]}
+                if (library, env_id, seed) in done:
+                    continue
                 load = list(os.getloadavg())
-                output = subprocess.run(
+                child = subprocess.run(
                     [sys.executable, __file__, "--one", library, env_id, str(seed)],
-                    check=True, capture_output=True, text=True,
-                ).stdout.strip().splitlines()[-1]
+                    capture_output=True, text=True,
+                )
+                if child.returncode != 0:
+                    sys.exit(f"{library} {env_id} seed {seed} failed:\n{child.stderr[-3000:]}")
+                output = child.stdout.strip().splitlines()[-1]
                 run = {"library": library, "env": env_id, "seed": seed, "load_average_before": load,
                        **json.loads(output)}
                 report["runs"].append(run)

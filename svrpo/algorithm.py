@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -384,6 +385,19 @@ def restore_state(run: Run, state: dict[str, Any], source: Path) -> None:
         ) from None
 
 
+def _write_config(run_dir: Path, config: Config) -> None:
+    """config.json, atomically (a resume reads it: a half-written one would strand the run)."""
+    path, text = run_dir / "config.json", config.to_json() + "\n"
+    if path.exists() and path.read_text() == text:
+        return
+    temporary = path.with_name(path.name + ".tmp")
+    with open(temporary, "w") as handle:
+        handle.write(text)
+        handle.flush()
+        os.fsync(handle.fileno())
+    temporary.replace(path)
+
+
 def _resume(run: Run, run_dir: Path) -> list[str]:
     """Restore the newest readable checkpoint and cut progress.csv back to it; notes to print."""
     directory = run_dir / "checkpoints"
@@ -402,13 +416,18 @@ def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bo
 
     resume=True continues from the newest readable checkpoint in run_dir (an older one if the
     newest is damaged); progress.csv loses the rows logged after it, which are redone, so the
-    file ends exactly as in an uninterrupted run. Whatever stops the loop (Ctrl-C, dying
-    workers, a bug), the last completed iteration is checkpointed before the exception leaves.
+    file ends exactly as in an uninterrupted run. resume=False starts over: checkpoints and
+    rows an earlier run left in run_dir are removed (and its TensorBoard events hidden), so the
+    two runs never mix. Whatever stops the loop (Ctrl-C, dying workers, a bug), the last
+    completed iteration is checkpointed before the exception leaves.
     """
     run_dir.mkdir(parents=True, exist_ok=True)
-    if not resume:  # first, so that a run killed while starting is still a resumable directory
-        (run_dir / "config.json").write_text(config.to_json() + "\n")
     checkpoints = run_dir / "checkpoints"
+    if not resume:
+        for stale in checkpoint.list_checkpoints(checkpoints):
+            stale.unlink()
+        # Written first, so that a run killed while starting is still a resumable directory.
+        _write_config(run_dir, config)
     progress = run_dir / "progress.csv"
     run = build_run(config)
     try:
@@ -420,7 +439,7 @@ def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bo
         if kept != list(range(1, run.iteration + 1)):
             notes.append(f"warning: {progress} should hold the rows of iterations 1..{run.iteration} "
                          f"(checkpoint), it holds {len(kept)} rows; continuing")
-        (run_dir / "config.json").write_text(config.to_json() + "\n")
+        _write_config(run_dir, config)  # on resume only if it changed (e.g. more total_steps)
         logger = RunLogger(run_dir, config.iterations * config.batch_size, run.env_steps, show_progress)
         for note in notes:
             logger.message(note)
@@ -429,10 +448,10 @@ def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bo
         try:
             while run.iteration < config.iterations:
                 row = run_iteration(run)
-                logger.log(row)
-                for note in run.notes:
+                for note in run.notes:  # before the row: a kill right after it loses no warning
                     logger.message(note)
                 run.notes.clear()
+                logger.log(row)
                 last_state = capture_state(run)
                 if run.iteration % config.checkpoint_every == 0 or run.iteration == config.iterations:
                     checkpoint.save_atomic(last_state, checkpoint.checkpoint_path(checkpoints, run.iteration))
@@ -442,17 +461,17 @@ def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bo
             for note in run.notes:
                 logger.message(note)
             # The interrupted iteration may be half done; the last completed one is consistent.
-            if last_state["iteration"] not in (0, saved_iteration):
+            done = last_state["iteration"]
+            if done not in (0, saved_iteration):
                 try:
-                    path = checkpoint.checkpoint_path(checkpoints, last_state["iteration"])
-                    checkpoint.save_atomic(last_state, path)
+                    checkpoint.save_atomic(last_state, checkpoint.checkpoint_path(checkpoints, done))
                     checkpoint.prune(checkpoints)
                 except Exception as save_error:  # keep the original error; say the save failed
                     logger.message(f"could not write the final checkpoint: {save_error}")
                     raise error from None
             stopped = "interrupted" if isinstance(error, KeyboardInterrupt) else "stopped"
-            logger.message(f"{stopped}: the checkpoint of iteration {last_state['iteration']} "
-                           f"is in {checkpoints}")
+            logger.message(f"{stopped}: the checkpoint of iteration {done} is in {checkpoints}" if done
+                           else f"{stopped} before the first iteration ended: nothing to checkpoint")
             raise
         finally:
             logger.close()

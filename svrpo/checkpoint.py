@@ -24,8 +24,9 @@ class CheckpointError(RuntimeError):
     """A checkpoint that cannot be read or does not fit the run, naming the file."""
 
 
-FORMAT = 1
-"""Version of the checkpoint layout written by algorithm.capture_state."""
+FORMAT = 2
+"""Version of the checkpoint layout written by algorithm.capture_state (2: RNG states of torch,
+NumPy and the MLP baseline's generator added; format-1 files cannot resume bit-exactly)."""
 
 _REQUIRED_KEYS = {"format", "config", "iteration"}
 

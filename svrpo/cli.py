@@ -7,17 +7,22 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import shutil
+import signal
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from svrpo.checkpoint import CheckpointError
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, make_preset
 from svrpo.envs import EnvError, env_info
 from svrpo.evaluation import EvaluationError
 from svrpo.experiments.specs import SpecError
+
+if TYPE_CHECKING:
+    from svrpo.experiments.backends import Backend
 
 
 class UsageError(ValueError):
@@ -57,6 +62,10 @@ def _default_out(config: Config, preset: str) -> Path:
     return Path("runs") / config.env_id / preset / f"seed{config.seed}"
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def _train(args: argparse.Namespace, extra: list[str]) -> int:
     if args.resume is not None:
         run_dir = Path(args.resume)
@@ -90,6 +99,9 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
         shutil.rmtree(run_dir)
     if args.resume is None:
         run_dir.mkdir(parents=True, exist_ok=True)
+        # config.json first (atomically): a run killed at any later moment can be resumed.
+        (run_dir / "config.json.tmp").write_text(config.to_json() + "\n")
+        (run_dir / "config.json.tmp").replace(run_dir / "config.json")
         meta = {"preset": preset, "scale": args.scale, "argv": sys.argv[1:],
                 "python": platform.python_version()}
         (run_dir / "run.json").write_text(json.dumps(meta, indent=2) + "\n")
@@ -98,6 +110,8 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
 
     print(f"training {preset} on {config.env_id}: {config.iterations} iterations x "
           f"N={config.batch_size} steps -> {run_dir}", file=sys.stderr)
+    # SIGTERM (a scheduler or `kill`) takes the Ctrl-C path: checkpoint the last iteration, exit.
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
         run = train(config, run_dir, resume=args.resume is not None, show_progress=not args.no_progress)
     except KeyboardInterrupt:
@@ -146,8 +160,36 @@ def _plot(args: argparse.Namespace, extra: list[str]) -> int:
     return 0
 
 
+def _sweep_backend(args: argparse.Namespace) -> Backend:
+    """The --backend with its options checked (UsageError); Ray is imported only for `ray`."""
+    from svrpo.experiments import LocalBackend
+
+    if args.backend == "local":
+        given = [flag for flag, value in (("--address", args.address), ("--storage", args.storage),
+                                          ("--max-retries", args.max_retries)) if value is not None]
+        if given:
+            raise UsageError(f"{', '.join(given)}: only with --backend ray")
+        if args.jobs == "auto":
+            return LocalBackend()
+        if args.jobs.isdigit() and int(args.jobs) >= 1:
+            return LocalBackend(max_parallel=int(args.jobs))
+        raise UsageError(f"--jobs must be auto or a positive integer; got {args.jobs!r}")
+    from svrpo.experiments.ray_backend import DEFAULT_MAX_RETRIES, RayBackend, ray_available
+
+    if args.jobs != "auto":
+        raise UsageError("--jobs is for --backend local; Ray starts a run whenever a node has "
+                         "its sampling workers' CPUs free")
+    if args.max_retries is not None and args.max_retries < 0:
+        raise UsageError(f"--max-retries must be >= 0; got {args.max_retries}")
+    if not ray_available():
+        raise UsageError("--backend ray needs Ray: pip install 'svrpo[ray]'")
+    retries = DEFAULT_MAX_RETRIES if args.max_retries is None else args.max_retries
+    return RayBackend(address=args.address, max_retries=retries)
+
+
 def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
-    from svrpo.experiments import LocalBackend, load_spec, run_sweep
+    from svrpo.experiments import RunStatus, load_spec, plan, run_sweep, status
+    from svrpo.experiments.backends import BackendError
 
     overrides: dict[str, Any] = dict(_parse_overrides(extra))
     if args.steps is not None:
@@ -155,26 +197,32 @@ def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
     if args.seeds is not None and args.seeds < 1:
         raise UsageError(f"--seeds must be >= 1; got {args.seeds}")
     spec = load_spec(args.spec).with_changes(args.scale, args.seeds, overrides)
-    if args.jobs == "auto":
-        backend = LocalBackend()
-    elif args.jobs.isdigit() and int(args.jobs) >= 1:
-        backend = LocalBackend(max_parallel=int(args.jobs))
-    else:
-        raise UsageError(f"--jobs must be auto or a positive integer; got {args.jobs!r}")
+    backend = _sweep_backend(args)
+    root = Path(args.root)
+    if args.backend == "ray":
+        # Tasks run in other working directories, maybe on other nodes: an absolute path (not
+        # resolved, so a symlinked mount point stays the name every node knows).
+        root = Path(os.path.abspath(args.storage if args.storage is not None else args.root))
     import signal
 
     from svrpo.experiments.runner import raise_keyboard_interrupt
 
     signal.signal(signal.SIGTERM, raise_keyboard_interrupt)  # stop like Ctrl-C: runs checkpoint
     try:
-        summary = run_sweep(spec, Path(args.root), backend, dry_run=args.dry_run)
+        if not args.dry_run and any(status(job) is not RunStatus.DONE for job in plan(spec, root)):
+            backend.connect()  # before anything is written: an unreachable cluster is bad input
+        summary = run_sweep(spec, root, backend, dry_run=args.dry_run)
     except KeyboardInterrupt:
         print("interrupted: running runs checkpointed; run the same command again to resume",
               file=sys.stderr)
         return 130
+    except BackendError as error:
+        raise UsageError(str(error)) from None
+    finally:
+        backend.close()
     if not args.dry_run:
         print(summary.line())
-        print(f"plot with: svrpo plot {Path(args.root) / spec.directory}")
+        print(f"plot with: svrpo plot {root / spec.directory}")
     return 1 if summary.failed else 0
 
 
@@ -244,7 +292,8 @@ def make_parser() -> argparse.ArgumentParser:
         help="train a grid of tasks x presets x seeds (figure1, figure2, figure3 or a YAML file)",
         description="Train every run of an experiment into ROOT/NAME-SCALE/ENV/PRESET/seedK/. "
         "Finished runs are skipped, unfinished ones resume from their last checkpoint. Any config "
-        "field can be set for every run as --field value.",
+        "field can be set for every run as --field value. --backend ray runs each run as a Ray task "
+        "(on a cluster with --address), retried and resumed if its worker or node dies.",
     )
     sweep.add_argument("spec", metavar="SPEC", help="figure1 | figure2 | figure3 | FILE.yaml")
     sweep.add_argument("--scale", default=None, choices=SCALES, help="default: the spec's (laptop)")
@@ -254,6 +303,18 @@ def make_parser() -> argparse.ArgumentParser:
                        help="runs at a time: auto (as many as their sampling workers fit in the cores) or N")
     sweep.add_argument("--steps", type=int, default=None, help="total environment steps per run")
     sweep.add_argument("--dry-run", action="store_true", help="list the runs and their status only")
+    sweep.add_argument("--backend", default="local", choices=("local", "ray"),
+                       help="local: subprocesses on this machine (default); ray: one Ray task per run "
+                       "(pip install 'svrpo[ray]')")
+    sweep.add_argument("--address", default=None,
+                       help="ray: the cluster's HEAD:PORT (default: $RAY_ADDRESS, else start a local "
+                       "Ray instance)")
+    sweep.add_argument("--storage", default=None, metavar="PATH",
+                       help="ray: sweep root on a filesystem every node mounts at the same path "
+                       "(default --root)")
+    sweep.add_argument("--max-retries", type=int, default=None,
+                       help="ray: retries of a run whose worker, node or training process died "
+                       "(default 3); it resumes from its last checkpoint")
     sweep.set_defaults(handler=_sweep)
     evaluate = commands.add_parser(
         "evaluate",

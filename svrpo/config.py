@@ -191,7 +191,7 @@ def coerce_field(name: str, value: Any) -> Any:
             return tuple(widths)
         if hint is str:
             return str(value)
-    except (TypeError, ValueError) as error:
+    except (TypeError, ValueError, OverflowError) as error:
         if isinstance(error, ConfigError):
             raise
         kind = {int: "an integer", float: "a number"}.get(hint, "a list of integers")
@@ -203,6 +203,7 @@ def validate(config: Config) -> Config:
     """Check ranges and cross-field constraints; return the config or raise ConfigError."""
     c = config
     checks: list[tuple[bool, str]] = [
+        (c.seed >= 0, "seed must be >= 0"),
         (c.batch_size >= 1, "batch_size (N) must be >= 1"),
         (c.total_steps >= c.batch_size, "total_steps must be >= batch_size (N)"),
         (0 < c.max_kl < math.inf, "max_kl (delta) must be > 0 and finite"),
@@ -215,7 +216,8 @@ def validate(config: Config) -> Config:
         (c.estimator != "full" or c.inner_steps == 1,
          "estimator 'full' (TRPO) takes inner_steps (J) = 1"),
         (c.cg_iters >= 1, "cg_iters must be >= 1"),
-        (c.cg_damping >= 0, "cg_damping must be >= 0"),
+        (0 <= c.cg_damping < math.inf, "cg_damping must be >= 0 and finite"),
+        (0 <= c.cg_residual_tol < math.inf, "cg_residual_tol must be >= 0 and finite"),
         (0 < c.backtrack_ratio < 1, "backtrack_ratio must be in (0, 1)"),
         (c.max_backtracks >= 1, "max_backtracks must be >= 1"),
         (0 < c.gamma <= 1, "gamma must be in (0, 1]"),
@@ -233,7 +235,7 @@ def validate(config: Config) -> Config:
         (c.variance_probe_batches != 1, "variance_probe_batches must be 0 or >= 2"),
         (c.eval_every >= 0 and c.eval_episodes >= 1, "eval_every >= 0 and eval_episodes >= 1"),
         (c.checkpoint_every >= 1, "checkpoint_every must be >= 1"),
-        (c.baseline_lr > 0 and c.baseline_epochs >= 1 and c.baseline_minibatch_size >= 1,
+        (0 < c.baseline_lr < math.inf and c.baseline_epochs >= 1 and c.baseline_minibatch_size >= 1,
          "baseline_lr > 0, baseline_epochs >= 1, baseline_minibatch_size >= 1"),
     ]
     failed = [message for ok, message in checks if not ok]

@@ -84,41 +84,60 @@ class RolloutWorker:
         counts = np.asarray(steps_per_env, dtype=np.int64)
         if counts.shape != (len(self.envs),) or (counts < 0).any():
             raise ValueError(f"need {len(self.envs)} non-negative step counts, got {counts}")
-        n, obs_dim = int(counts.sum()), self._obs.shape[1]
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        obs = np.empty((n, obs_dim), dtype=np.float32)
-        next_obs = np.empty((n, obs_dim), dtype=np.float32)
-        actions = np.empty((n, len(self._low)), dtype=np.float32)
-        rewards = np.empty(n, dtype=np.float32)
-        terminated, truncated = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-        timesteps = np.empty(n, dtype=np.int64)
+        num_envs, obs_dim, act_dim = len(self.envs), self._obs.shape[1], len(self._low)
+        steps = int(counts.max(initial=0))
+        always = int(counts.min()) if counts.size else 0  # lockstep steps in which every env steps
+        # Step-major buffers (lockstep k, env i): each lockstep step writes whole rows with plain
+        # slicing; the env-by-env layout of the chunk is gathered once at the end.
+        obs = np.empty((steps, num_envs, obs_dim), dtype=np.float32)
+        next_obs = np.empty((steps, num_envs, obs_dim), dtype=np.float32)
+        actions = np.empty((steps, num_envs, act_dim), dtype=np.float32)
+        rewards = np.empty((steps, num_envs), dtype=np.float32)
+        terminated = np.zeros((steps, num_envs), dtype=bool)
+        truncated = np.zeros((steps, num_envs), dtype=bool)
+        timesteps = np.empty((steps, num_envs), dtype=np.int64)
         ended: list[list[tuple[float, int]]] = [[] for _ in self.envs]
         limit = self._time_limit
-        everyone = np.arange(len(self.envs))
-        for k in range(int(counts.max(initial=0))):
+        everyone = np.arange(num_envs)
+        everyone_list = everyone.tolist()
+        for k in range(steps):
             # steps_per_env differ by at most one, so only the last lockstep step is partial.
-            active = everyone if counts.min() > k else np.flatnonzero(counts > k)
-            rows = starts[active] + k
-            current = self._obs[active]
+            full = k < always
+            active = everyone if full else np.flatnonzero(counts > k)
+            at = slice(None) if full else active  # basic slicing whenever every env steps
+            current = self._obs[at]
             # Executed actions are rounded to float32 first, so the batch stores exactly what
             # the env received (before clipping) and a replay of the batch is bit-exact.
             sampled = snapshot.sample_action(current, self._rng).astype(np.float32)
             controls = scale_action(sampled, self._low, self._high)
-            obs[rows], actions[rows], timesteps[rows] = current, sampled, self._timestep[active]
-            observations, step_rewards, step_terminated = self._stepper.step(active.tolist(), controls)
-            self._timestep[active] += 1
-            step_truncated = (
-                self._timestep[active] >= limit if limit is not None else np.zeros(len(active), bool)
+            obs[k, at], actions[k, at], timesteps[k, at] = current, sampled, self._timestep[at]
+            observations, step_rewards, step_terminated = self._stepper.step(
+                everyone_list if full else active.tolist(), controls
             )
-            rewards[rows], terminated[rows], truncated[rows] = step_rewards, step_terminated, step_truncated
-            next_obs[rows] = observations
-            self._return[active] += step_rewards
-            self._obs[active] = observations
+            self._timestep[at] += 1
+            step_truncated = (
+                self._timestep[at] >= limit if limit is not None else np.zeros(len(active), bool)
+            )
+            rewards[k, at], next_obs[k, at] = step_rewards, observations
+            terminated[k, at], truncated[k, at] = step_terminated, step_truncated
+            self._return[at] += step_rewards
+            self._obs[at] = observations
             for j in np.flatnonzero(step_terminated | step_truncated).tolist():
                 i = int(active[j])
                 ended[i].append((float(self._return[i]), int(self._timestep[i])))
                 self._obs[i] = self._stepper.reset(i)
                 self._return[i], self._timestep[i] = 0.0, 0
+        # (env, step) pairs that were taken, env by env and in time order within each env.
+        taken = np.arange(steps)[None, :] < counts[:, None]
+
+        def env_major(values: np.ndarray) -> np.ndarray:
+            return values.swapaxes(0, 1)[taken]
+
+        obs, next_obs, actions = env_major(obs), env_major(next_obs), env_major(actions)
+        rewards, timesteps = env_major(rewards), env_major(timesteps)
+        terminated, truncated = env_major(terminated), env_major(truncated)
+        n = int(counts.sum())
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
         segment_end = np.zeros(n, dtype=bool)
         last = (starts + counts - 1)[counts > 0]
         segment_end[last] = ~(terminated[last] | truncated[last])

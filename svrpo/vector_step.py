@@ -230,8 +230,9 @@ class VectorStep:
             after = fields["qpos"][:, : logic.qpos_position].copy()
         else:
             after = np.stack([logic.body_position(self._bases[i], datas[i]) for i in indices])
-        velocity = (after - self._positions[indices]) / self._dt
-        self._positions[indices] = after
+        at = slice(None) if count == len(self.envs) else list(indices)  # every env: plain slicing
+        velocity = (after - self._positions[at]) / self._dt
+        self._positions[at] = after
         observations, rewards, terminated = logic.outcome(self._bases[0], fields, velocity, controls)
         return observations, rewards, np.asarray(terminated, dtype=bool)
 

@@ -109,7 +109,8 @@ def test_learns_inverted_pendulum(preset: str, seed: int, tmp_path: Path) -> Non
                     checkpoint_every=20, num_workers=2, envs_per_worker=4,
                     **({} if preset == "trpo" else {"minibatch_size": 500}))
     train(config, tmp_path, show_progress=False)
-    returns = [float(r["average_return"]) for r in _rows(tmp_path / "progress.csv")]
-    first, last_five = returns[0], sum(returns[-5:]) / 5
+    # An iteration in which no episode ended (1000-step episodes late in training) has no return.
+    returns = [float(r["average_return"]) for r in _rows(tmp_path / "progress.csv") if r["average_return"]]
+    first, last_five = returns[0], sum(returns[-5:]) / len(returns[-5:])
     assert first < 15
     assert last_five > 40, returns

@@ -4,8 +4,8 @@ A backend takes prepared jobs (run directories holding config.json) and trains e
 calling `on_done` as each one finishes. `LocalBackend` starts one subprocess per run
 (`python -m svrpo.experiments.runner RUN_DIR`): the sampler inside a run spawns its own worker
 processes, which a daemonic pool process could not, and a crash in one run cannot take the
-others down. Another backend (e.g. Ray: one remote task calling `jobs.execute(run_dir)` per
-job) only has to implement `run_all`.
+others down. Another backend only has to implement `run_all`: `RayBackend`
+(svrpo/experiments/ray_backend.py, the `ray` extra) runs each job as a Ray task on a cluster.
 """
 
 from __future__ import annotations
@@ -23,6 +23,11 @@ from svrpo.experiments.jobs import JobResult, RunJob
 
 OnDone = Callable[[JobResult], None]
 
+
+class BackendError(RuntimeError):
+    """A backend that cannot start (e.g. Ray missing or its cluster unreachable): one line."""
+
+
 _POLL_S = 0.2
 _INTERRUPT_GRACE_S = 120.0
 
@@ -32,6 +37,15 @@ class Backend(Protocol):
 
     def describe(self) -> str:
         """One line saying how the jobs will run."""
+        ...
+
+    def connect(self) -> None:
+        """Reach the machines that will run the jobs (BackendError if they cannot be reached);
+        run_all connects too, this lets a caller fail before anything is written."""
+        ...
+
+    def close(self) -> None:
+        """Release what connect() acquired."""
         ...
 
     def run_all(self, jobs: Sequence[RunJob], on_done: OnDone | None = None) -> list[JobResult]:
@@ -74,6 +88,12 @@ class LocalBackend:
         if self.max_parallel is not None:
             return f"local subprocesses, {self.max_parallel} at a time"
         return f"local subprocesses, as many at a time as their sampling workers fit in {self.cores} cores"
+
+    def connect(self) -> None:
+        """Nothing to reach: the jobs run on this machine."""
+
+    def close(self) -> None:
+        """Nothing to release."""
 
     def run_all(self, jobs: Sequence[RunJob], on_done: OnDone | None = None) -> list[JobResult]:
         pending = list(enumerate(jobs))
