@@ -46,7 +46,7 @@ LAYOUT = {"Hopper-v5": (1, True), "HalfCheetah-v5": (1, False), "Walker2d-v5": (
 def agreement(env_id: str, steps: int, seed: int) -> dict[str, Any]:
     hidden, clipped = LAYOUT[env_id]
     pool = envpool.make_gymnasium(env_id, num_envs=1, seed=seed)
-    reference = gym.make(env_id).unwrapped
+    reference: Any = gym.make(env_id).unwrapped
     reference.reset(seed=seed)
     rng = np.random.default_rng(seed)
     obs, info = pool.reset()

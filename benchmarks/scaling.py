@@ -22,7 +22,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
-POINTS = [(10_000, (64, 64)), (50_000, (64, 64)), (200_000, (64, 64)), (50_000, (256, 256))]
+POINTS: list[tuple[int, tuple[int, ...]]] = [
+    (10_000, (64, 64)), (50_000, (64, 64)), (200_000, (64, 64)), (50_000, (256, 256)),
+]
 
 
 def one_point(batch_size: int, hidden: tuple[int, ...]) -> dict[str, Any]:
@@ -56,6 +58,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--one", nargs=2, help=argparse.SUPPRESS)
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "scaling.json")
+    parser.add_argument("--points", nargs="+", default=None, metavar="N:W,W",
+                        help="e.g. 200000:64,64; re-measured points replace earlier ones in --out")
     args = parser.parse_args()
     if args.one:
         hidden = tuple(int(w) for w in args.one[1].split(","))
@@ -66,7 +70,19 @@ def main() -> None:
 
     report: dict[str, Any] = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
                               "machine": machine_info(), "points": []}
-    for batch_size, hidden in POINTS:
+    points = POINTS
+    if args.points:
+        points = [(int(n), tuple(int(w) for w in widths.split(","))) for n, _, widths in
+                  (p.partition(":") for p in args.points)]
+        if args.out.exists():  # keep the other points of an earlier run
+            earlier = json.loads(args.out.read_text())["points"]
+            report["points"] = [p for p in earlier
+                                if (p["batch_size"], tuple(p["hidden_sizes"])) not in set(points)]
+            previous = json.loads(args.out.read_text())
+            report["earlier_command"] = previous.get("command")
+            report["earlier_machine"] = previous.get("machine")
+            report["earlier_machine_after"] = previous.get("machine_after")
+    for batch_size, hidden in points:
         output = subprocess.run(
             [sys.executable, __file__, "--one", str(batch_size), ",".join(map(str, hidden))],
             check=True, capture_output=True, text=True,

@@ -44,6 +44,24 @@ def _seconds(function: Callable[[], Any], inner: int) -> float:
     return statistics.median(times)
 
 
+def _setups(policy: GaussianMlpPolicy, rows: torch.Tensor) -> tuple[Callable[[], Any], Callable[[], Any]]:
+    def before() -> Any:
+        return autograd_fisher_vector_product(policy, rows, 1e-5)
+
+    def after() -> Any:
+        return fisher_vector_product(policy, rows, 1e-5)
+
+    return before, after
+
+
+def _products(
+    policy: GaussianMlpPolicy, rows: torch.Tensor, vector: torch.Tensor
+) -> tuple[Callable[[], Any], Callable[[], Any]]:
+    old, new = _setups(policy, rows)
+    old_product, new_product = old(), new()
+    return (lambda: old_product(vector)), (lambda: new_product(vector))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
@@ -70,11 +88,8 @@ def main() -> None:
     pieces: dict[str, tuple[Callable[[], Any], Callable[[], Any]]] = {}
     for rows in (5_000, 50_000):
         subset = observations[:rows]
-        old_product = autograd_fisher_vector_product(policy, subset, 1e-5)
-        new_product = fisher_vector_product(policy, subset, 1e-5)
-        pieces[f"fisher_setup_{rows}"] = (lambda s=subset: autograd_fisher_vector_product(policy, s, 1e-5),
-                                          lambda s=subset: fisher_vector_product(policy, s, 1e-5))
-        pieces[f"fisher_product_{rows}"] = (lambda p=old_product: p(vector), lambda p=new_product: p(vector))
+        pieces[f"fisher_setup_{rows}"] = _setups(policy, subset)
+        pieces[f"fisher_product_{rows}"] = _products(policy, subset, vector)
     pieces["line_search_trial_50000"] = (old_trial, new_trial)
 
     def numpy_tanh() -> None:

@@ -61,12 +61,12 @@ def run_ours(env_id: str, seed: int) -> dict[str, Any]:
         seconds = time.perf_counter() - tic
         with open(Path(directory) / "progress.csv", newline="") as handle:
             rows = list(csv.DictReader(handle))
-    returns = [float(r["average_return"]) for r in rows]
+    returns = [float(r["average_return"] or "nan") for r in rows]  # empty: no episode ended
     sampling = sum(float(r["time_sampling"]) for r in rows)
     return {
         "seconds": seconds, "env_steps": int(rows[-1]["env_steps"]),
         "sampling_seconds": sampling,
-        "final_eval_return": float(rows[-1]["eval_return"]),
+        "final_eval_return": float(rows[-1]["eval_return"] or "nan"),
         "train_return_last_10_iterations": float(np.nanmean(returns[-10:])),
         "num_workers": config.num_workers, "envs_per_worker": config.envs_per_worker,
         "torch_threads": config.torch_threads,

@@ -261,11 +261,13 @@ def update_breakdown(
     scale: str = "paper",
     seed: int = 0,
     warmup_iterations: int = 0,
+    svrpo_overrides: dict[str, Any] | None = None,
     **overrides: Any,
 ) -> dict[str, Any]:
     """Time one iteration's sampling, one SVRPO update and one TRPO update on the same batch.
 
-    Both presets at `scale` (with `overrides` applied to both) see the same batch and start
+    Both presets at `scale` (with `overrides` applied to both, `svrpo_overrides` such as m and J
+    to SVRPO only) see the same batch and start
     from the same policy and generator states. `warmup_iterations` full SVRPO iterations run
     first, so the measured update is not the very first one. Also times the baseline fits
     (the preset's and an MLP value function with the config's defaults).
@@ -276,7 +278,9 @@ def update_breakdown(
     from svrpo.update import update_policy
 
     common = {"seed": seed, "eval_every": 0, **overrides}
-    svrpo_config = make_preset("svrpo", env_id, scale).replace(**common)  # type: ignore[arg-type]
+    svrpo_config = make_preset("svrpo", env_id, scale).replace(  # type: ignore[arg-type]
+        **common, **(svrpo_overrides or {})
+    )
     trpo_config = make_preset("trpo", env_id, scale).replace(**common)  # type: ignore[arg-type]
     run = build_run(svrpo_config)
     try:
@@ -376,10 +380,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"sampling {args.env}: ours {sampling['sampler_steps_per_s_median']:,.0f} env steps/s, "
           f"raw MuJoCo {sampling['physics_steps_per_s_median']:,.0f} -> ratio {sampling['ratio']:.2f} "
           f"(target >= 0.7; replay bit-exact: {sampling['replay_bit_exact']})")
-    update = update_breakdown(
-        args.env, "paper", batch_size=args.batch_size, minibatch_size=max(1, args.batch_size // 10),
-        inner_steps=50,
-    )
+    svrpo_fields = {"minibatch_size": max(1, args.batch_size // 10), "inner_steps": 50}
+    update = update_breakdown(args.env, "paper", svrpo_overrides=svrpo_fields, batch_size=args.batch_size)
     for name, target in (("svrpo", 1.0), ("trpo", 0.25)):
         parts = ", ".join(f"{k} {v:.2f}" for k, v in update[name]["parts_s"].items() if v >= 0.005)
         ratio = update[f"{name}_update_over_sampling"]

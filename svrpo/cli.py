@@ -251,6 +251,12 @@ def _evaluate(args: argparse.Namespace, extra: list[str]) -> int:
     return 0
 
 
+def _bench(args: argparse.Namespace, extra: list[str]) -> int:
+    from svrpo import bench
+
+    return bench.main(extra)
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="svrpo", description="SVRPO and TRPO on Gymnasium MuJoCo tasks."
@@ -329,6 +335,10 @@ def make_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--video-episodes", type=int, default=1, help="episodes in the video")
     evaluate.add_argument("--video-size", default="480x480", help="WIDTHxHEIGHT in pixels")
     evaluate.set_defaults(handler=_evaluate)
+    # `svrpo bench` owns its options (svrpo/bench.py); everything after `bench` is passed through.
+    bench = commands.add_parser("bench", add_help=False,
+                                help="quick sampling-vs-physics and update-cost check of this machine")
+    bench.set_defaults(handler=_bench)
     return parser
 
 

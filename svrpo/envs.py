@@ -6,6 +6,7 @@ This module must not import torch: rollout workers import it.
 from __future__ import annotations
 
 import difflib
+import importlib
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,6 +45,15 @@ def make_env(env_id: str, max_episode_steps: int | None = None) -> gym.Env:
     max_episode_steps overrides the registered time limit (None keeps it). Raises EnvError for
     an unknown id (suggesting close matches) or for spaces the Gaussian policy cannot drive.
     """
+    module, _, name = env_id.rpartition(":")
+    if module:
+        # Gymnasium's "package.module:EnvName-v0" form: importing the module registers the env
+        # (also inside spawned workers, which start with a fresh registry).
+        try:
+            importlib.import_module(module)
+        except ImportError as error:
+            raise EnvError(f"cannot import {module!r} for environment {env_id!r}: {error}") from None
+        env_id = name
     if env_id not in gym.registry:
         matches = difflib.get_close_matches(env_id, list(gym.registry.keys()), n=3, cutoff=0.6)
         hint = f" Did you mean {', '.join(repr(m) for m in matches)}?" if matches else ""

@@ -259,7 +259,7 @@ def worker_main(
         while True:
             try:
                 command, args = conn.recv()
-            except EOFError:  # the parent has gone away
+            except (EOFError, OSError):  # the parent has gone away (EOF, or reset if SIGKILLed)
                 break
             if command == "close":
                 break

@@ -5,9 +5,9 @@ counted per environment instance over its whole life (resets included), so with 
 N/E steps each per iteration, step k falls in iteration ceil(k / (N/E)) of every env: the
 poisoned iteration is known in advance and the same in every run.
 
-Import this module in the process that builds the environments. svrpo.envs.make_env only
-accepts ids already in the registry (not gymnasium's "module:EnvName" form), so spawned
-sampling workers do not see these ids: use num_workers=0 with them.
+Spawned sampling workers start with a fresh registry: give them the id in gymnasium's
+"module:EnvName" form, "tests.nan_envs:NanRewardPendulum-v0", which svrpo.envs.make_env imports
+first; the bare id works in-process (num_workers=0) once this module is imported.
 """
 
 from __future__ import annotations

@@ -84,3 +84,9 @@ def test_refuses_existing_run_then_resumes(tmp_path: Path) -> None:
     resumed = svrpo("train", "--resume", str(out), "--no-progress", cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr
     assert (out / "progress.csv").read_text().splitlines()[:3] == before.splitlines()[:3]
+
+
+def test_bench_is_wired_to_its_own_options(tmp_path: Path) -> None:
+    result = svrpo("bench", "--help", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "--repeats" in result.stdout and "physics" in result.stdout

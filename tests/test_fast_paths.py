@@ -4,6 +4,9 @@ state (with the batched step's cached positions), and the benchmark's bit-exact 
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -79,3 +82,15 @@ def test_sampling_benchmark_replay_is_bit_exact() -> None:
                                  workers=1, envs_per_worker=2)
     assert result["replay_bit_exact"]
     assert result["ratio"] > 0
+
+
+def test_bench_main_runs_and_writes_json(tmp_path: Path) -> None:
+    """`svrpo bench` end to end at toy sizes: both measurements run and are written."""
+    from svrpo.bench import main
+
+    out = tmp_path / "bench.json"
+    assert main(["--steps", "400", "--repeats", "1", "--batch-size", "1000", "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["sampling"]["replay_bit_exact"]
+    assert report["update"]["svrpo"]["inner_steps"] == 50
+    assert report["update"]["trpo"]["inner_steps"] == 1

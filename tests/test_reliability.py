@@ -393,9 +393,11 @@ def _same_tensors(a: dict[str, Any], b: dict[str, Any]) -> bool:
     return all(torch.equal(a[part][name], b[part][name]) for part in a for name in a[part])
 
 
+@pytest.mark.parametrize("workers", [0, 1])  # 1: the "module:Env" id must reach a spawned worker
 def test_nan_rewards_skip_the_update_keep_the_parameters_and_are_counted(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    train(_numerics_config(NAN_REWARD_ID), tmp_path, show_progress=False)
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], workers: int) -> None:
+    env_id = NAN_REWARD_ID if workers == 0 else f"tests.nan_envs:{NAN_REWARD_ID}"
+    train(_numerics_config(env_id).replace(num_workers=workers), tmp_path, show_progress=False)
     rows = _rows(tmp_path)
     assert [r["nonfinite_batches"] for r in rows] == ["0", "1", "1"]
     assert rows[1]["mean_kl"] == "" and rows[2]["mean_kl"] != ""  # skipped, then training goes on

@@ -27,7 +27,7 @@ def fisher_vector_product(
     J_s the Jacobian of the mean network at state s. The product is computed as J^T (P (J v)):
     a forward-mode pass then a backward pass through the MLP, both reusing the activations
     computed once here, so a CG iteration costs four small matrix products per layer instead
-    of a double-backward pass through the KL graph (benchmarks/update_cost.py measures both).
+    of a double-backward pass through the KL graph (benchmarks/update_pieces.py times both).
     Pass a random subset of the batch's observations to sub-sample F (ratio nu).
     """
     layers = _linear_layers(policy)
@@ -59,7 +59,7 @@ def fisher_vector_product(
                 tangent.addmm_(inputs[k], d_weights[k].t())
             # J^T u with u = P J v, layer by layer from the head down.
             upstream = tangent * precision
-            blocks: list[torch.Tensor] = [pieces[0]] * len(params)
+            blocks: list[torch.Tensor] = list(pieces)  # every slot is overwritten below
             for k in range(len(weights) - 1, -1, -1):
                 blocks[bias_slots[k]] = upstream.sum(0)
                 blocks[weight_slots[k]] = (upstream.t() @ inputs[k]).reshape(-1)
