@@ -24,7 +24,13 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
-from svrpo.bench import machine_info, random_snapshot, sampling_vs_physics, trained_snapshot  # noqa: E402
+from svrpo.bench import (  # noqa: E402
+    machine_info,
+    random_snapshot,
+    sampling_cpu_efficiency,
+    sampling_vs_physics,
+    trained_snapshot,
+)
 
 TASKS = ["Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5"]
 
@@ -53,11 +59,14 @@ def main() -> None:
         for name, snapshot, record in policies:
             result = sampling_vs_physics(env_id, snapshot, args.steps, args.repeats,
                                          envs_per_worker=args.envs_per_worker)
+            # The same policy in one in-process worker, timed in CPU seconds (steadier under load).
+            result["cpu"] = sampling_cpu_efficiency(env_id, snapshot, args.steps // 2, args.repeats,
+                                                    envs=args.envs_per_worker)
             result.update({"policy": name, "policy_record": record})
             report["results"].append(result)
             print(f"{env_id:15s} {name:8s} ours {result['sampler_steps_per_s_median']:9,.0f}/s  "
                   f"physics {result['physics_steps_per_s_median']:9,.0f}/s  ratio {result['ratio']:.2f}  "
-                  f"bit-exact {result['replay_bit_exact']}  "
+                  f"bit-exact {result['replay_bit_exact']}  cpu ratio {result['cpu']['cpu_ratio']:.2f}  "
                   f"mean episode {result['mean_episode_length_first_batch']}", flush=True)
             args.out.parent.mkdir(parents=True, exist_ok=True)
             args.out.write_text(json.dumps(report, indent=2) + "\n")  # partial results survive

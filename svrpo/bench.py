@@ -169,6 +169,52 @@ def sampling_vs_physics(
     }
 
 
+
+def sampling_cpu_efficiency(
+    env_id: str, snapshot: PolicySnapshot, steps: int, repeats: int = 3, envs: int = 8, seed: int = 0
+) -> dict[str, Any]:
+    """Env steps per CPU-second: one in-process RolloutWorker against single-threaded mujoco.rollout.
+
+    CPU time (time.process_time) is far less sensitive to other processes than wall time, so this
+    ratio is the steadier measure of how much of a worker's work is physics. Same replay method
+    as sampling_vs_physics; the worker is the one a Sampler runs in each process (E envs).
+    """
+    from svrpo.rollout_worker import RolloutWorker
+
+    worker = RolloutWorker(env_id, envs, seed, 0)
+    try:
+        counts = steps_per_env(steps, envs)
+        first = worker.sample(snapshot, counts)
+        tensors = {name: torch.from_numpy(getattr(first, name)) for name in (
+            "observations", "actions", "rewards", "next_observations", "terminated", "truncated",
+            "segment_end", "timesteps")}
+        batch = Batch(**tensors, episode_returns=first.episode_returns,
+                      episode_lengths=first.episode_lengths)
+        states, warmstarts, controls, exact = replay_states(env_id, batch, envs, seed)
+        env = make_env(env_id)
+        base: Any = env.unwrapped
+        model, frame_skip = base.model, int(base.frame_skip)
+        env.close()
+        datas = [mujoco.MjData(model)]
+        out = np.empty((len(states), frame_skip, states.shape[1]))
+        ours, physics = [], []
+        with mujoco.rollout.Rollout(nthread=0) as pool:
+            for _ in range(repeats):
+                tic = time.process_time()
+                worker.sample(snapshot, counts)
+                ours.append(steps / (time.process_time() - tic))
+                tic = time.process_time()
+                pool.rollout(model, datas, states, controls, nstep=frame_skip,
+                             initial_warmstart=warmstarts, state=out)
+                physics.append(len(states) / (time.process_time() - tic))
+    finally:
+        worker.close()
+    return {
+        "worker_steps_per_cpu_s": ours, "physics_steps_per_cpu_s": physics,
+        "cpu_ratio": statistics.median(ours) / statistics.median(physics),
+        "envs": envs, "replay_bit_exact": exact,
+    }
+
 class _Timers:
     """Named wall-clock accumulators; `wrap` times every call of a function under a name."""
 

@@ -133,6 +133,7 @@ def plot_panels(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import EngFormatter
 
     panels = list(groups)
     columns = max(1, min(3, len(panels)))
@@ -158,6 +159,8 @@ def plot_panels(
             axis.set_yscale("log")
         axis.set_title(panel)
         axis.set_xlabel("environment steps" if x_axis == "env_steps" else "iteration")
+        # 1.5M, 250k: plain integers of six or more digits run into each other on the axis.
+        axis.xaxis.set_major_formatter(EngFormatter(sep=""))
         axis.set_ylabel(ylabel)
         axis.grid(alpha=0.3)
         axis.legend(fontsize=8)
