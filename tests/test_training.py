@@ -21,6 +21,11 @@ def _rows(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(handle))
 
 
+def _without_wall_clock(rows: list[dict[str, str]]) -> list[dict[str, str]]:
+    """Rows minus the machine-dependent columns, for run-to-run comparisons."""
+    return [{k: v for k, v in r.items() if k not in WALL_CLOCK_COLUMNS} for r in rows]
+
+
 def _small(preset: str, env_id: str = "InvertedPendulum-v5", **changes: object):
     base = dict(batch_size=1000, minibatch_size=250, total_steps=3000, num_workers=1,
                 envs_per_worker=2, eval_every=2, eval_episodes=2, checkpoint_every=1)
@@ -77,10 +82,9 @@ def test_same_seed_same_progress(tmp_path: Path) -> None:
     train(config, tmp_path / "b", show_progress=False)
     a, b = _rows(tmp_path / "a" / "progress.csv"), _rows(tmp_path / "b" / "progress.csv")
     assert len(a) == config.iterations
-    strip = lambda rows: [{k: v for k, v in r.items() if k not in WALL_CLOCK_COLUMNS} for r in rows]  # noqa: E731
-    assert strip(a) == strip(b)
+    assert _without_wall_clock(a) == _without_wall_clock(b)
     train(config.replace(seed=1), tmp_path / "c", show_progress=False)
-    assert strip(_rows(tmp_path / "c" / "progress.csv")) != strip(a)
+    assert _without_wall_clock(_rows(tmp_path / "c" / "progress.csv")) != _without_wall_clock(a)
 
 
 def test_resume_continues_identically(tmp_path: Path) -> None:
@@ -91,9 +95,8 @@ def test_resume_continues_identically(tmp_path: Path) -> None:
     train(partial, tmp_path / "part", show_progress=False)
     train(full, tmp_path / "part", resume=True, show_progress=False)
     a, b = _rows(tmp_path / "full" / "progress.csv"), _rows(tmp_path / "part" / "progress.csv")
-    strip = lambda rows: [{k: v for k, v in r.items() if k not in WALL_CLOCK_COLUMNS} for r in rows]  # noqa: E731
     assert [r["iteration"] for r in b] == ["1", "2", "3", "4"]
-    assert strip(a) == strip(b)
+    assert _without_wall_clock(a) == _without_wall_clock(b)
 
 
 @pytest.mark.parametrize("preset", ["svrpo", "trpo"])
