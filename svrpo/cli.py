@@ -211,7 +211,7 @@ def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
     try:
         if not args.dry_run and any(status(job) is not RunStatus.DONE for job in plan(spec, root)):
             backend.connect()  # before anything is written: an unreachable cluster is bad input
-        summary = run_sweep(spec, root, backend, dry_run=args.dry_run)
+        summary = run_sweep(spec, root, backend, dry_run=args.dry_run, reuse=not args.no_reuse)
     except KeyboardInterrupt:
         print("interrupted: running runs checkpointed; run the same command again to resume",
               file=sys.stderr)
@@ -297,7 +297,8 @@ def make_parser() -> argparse.ArgumentParser:
         allow_abbrev=False,
         help="train a grid of tasks x presets x seeds (figure1, figure2, figure3 or a YAML file)",
         description="Train every run of an experiment into ROOT/NAME-SCALE/ENV/PRESET/seedK/. "
-        "Finished runs are skipped, unfinished ones resume from their last checkpoint. Any config "
+        "Finished runs are skipped, unfinished ones resume from their last checkpoint, and a new run "
+        "whose exact config already finished under another experiment of ROOT is copied. Any config "
         "field can be set for every run as --field value. --backend ray runs each run as a Ray task "
         "(on a cluster with --address), retried and resumed if its worker or node dies.",
     )
@@ -309,6 +310,9 @@ def make_parser() -> argparse.ArgumentParser:
                        help="runs at a time: auto (as many as their sampling workers fit in the cores) or N")
     sweep.add_argument("--steps", type=int, default=None, help="total environment steps per run")
     sweep.add_argument("--dry-run", action="store_true", help="list the runs and their status only")
+    sweep.add_argument("--no-reuse", action="store_true",
+                       help="train every new run, even one whose exact config already finished under "
+                       "another experiment of ROOT (by default that run is copied: figures share runs)")
     sweep.add_argument("--backend", default="local", choices=("local", "ray"),
                        help="local: subprocesses on this machine (default); ray: one Ray task per run "
                        "(pip install 'svrpo[ray]')")

@@ -221,3 +221,45 @@ def test_sigterm_stops_the_sweep_and_its_runs_with_a_checkpoint(tmp_path: Path) 
     job = plan(load_spec(str(spec)), root)[0]
     assert status(job) is RunStatus.PARTIAL
     assert 2 <= len(_rows(run_dir)) < 200
+
+
+def test_a_run_shared_by_two_experiments_is_copied_not_trained_again(tmp_path: Path) -> None:
+    root = tmp_path / "runs"
+    first = tmp_path / "first.yaml"
+    first.write_text(TINY_YAML.replace("seeds: 2", "seeds: 1"))
+    assert _sweep(first, root).returncode == 0
+    source = root / "tiny-laptop" / "InvertedPendulum-v5" / "svrpo" / "seed0"
+
+    # The same svrpo run in another experiment, next to a preset that is new there.
+    second = tmp_path / "second.yaml"
+    second.write_text(first.read_text().replace("name: tiny", "name: other")
+                      .replace("presets: [svrpo, trpo]", "presets: [svrpo, svrpo-sgd]"))
+    result = _sweep(second, root)
+    assert result.returncode == 0, result.stderr
+    assert ("2 started (1 copied from identical finished runs of other experiments); 2 finished"
+            in result.stdout)
+    copy = root / "other-laptop" / "InvertedPendulum-v5" / "svrpo" / "seed0"
+    assert _rows(copy) == _rows(source)  # wall-clock columns too: nothing was trained again
+    meta = json.loads((copy / "run.json").read_text())
+    assert (meta["experiment"], meta["copied_from"]) == ("other", str(source))
+    assert (copy / "checkpoints" / "iter_000002.pt").is_file()
+    assert not list(copy.parent.glob("*.copying"))
+    assert len(_rows(root / "other-laptop" / "InvertedPendulum-v5" / "svrpo-sgd" / "seed0")) == 2
+
+    # The premise of copying: training the same config again gives the same numbers.
+    retrained = subprocess.run([sys.executable, "-m", "svrpo.cli", "sweep", str(second), "--root",
+                                str(tmp_path / "fresh"), "--no-reuse"], capture_output=True, text=True,
+                               timeout=600)
+    assert retrained.returncode == 0, retrained.stderr
+    fresh = tmp_path / "fresh" / "other-laptop" / "InvertedPendulum-v5" / "svrpo" / "seed0"
+    assert _without_clock(_rows(fresh)) == _without_clock(_rows(source))
+
+    # Any config difference (here the discount) means another run: trained, not copied.
+    third = tmp_path / "third.yaml"
+    third.write_text(second.read_text().replace("name: other", "name: third")
+                     .replace("presets: [svrpo, svrpo-sgd]", "presets: [svrpo]") + "  gamma: 0.99\n")
+    result = _sweep(third, root)
+    assert result.returncode == 0, result.stderr
+    assert "copied" not in result.stdout + result.stderr
+    assert "copied_from" not in (root / "third-laptop" / "InvertedPendulum-v5" / "svrpo" / "seed0"
+                                 / "run.json").read_text()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import platform
+import shutil
 import sys
 import time
 from dataclasses import dataclass
@@ -113,6 +114,46 @@ def status(job: RunJob) -> RunStatus:
     if checkpoint.list_checkpoints(job.run_dir / "checkpoints"):
         return RunStatus.PARTIAL
     return RunStatus.NEW
+
+
+def identical_finished_run(job: RunJob, root: Path) -> Path | None:
+    """A finished run of another experiment under `root` with exactly `job`'s config, or None.
+
+    Figures share runs (svrpo and trpo on Swimmer appear in figures 1, 2 and 3): a run is fixed
+    by its config (training is deterministic for a config at a fixed torch thread count), so
+    training it again would only repeat the same numbers. Candidates are the same
+    ENV/PRESET/seedK under any other experiment directory; any config difference rules one out.
+    """
+    task, preset, seed = job.run_dir.parent.parent.name, job.run_dir.parent.name, job.run_dir.name
+    for candidate in sorted(root.glob(f"*/{task}/{preset}/{seed}")):
+        if candidate.resolve() == job.run_dir.resolve():
+            continue
+        try:
+            state = status(RunJob(candidate, job.config, job.preset, job.experiment, job.scale))
+        except SpecError:  # another config (or an unreadable one): not the same run
+            continue
+        if state is RunStatus.DONE:
+            return candidate
+    return None
+
+
+def adopt(job: RunJob, source: Path) -> None:
+    """Make `job.run_dir` a copy of the finished identical run in `source`.
+
+    The copy is assembled beside the target and renamed into place, so an interrupted copy
+    leaves no half run behind; run.json names this experiment and where the run came from.
+    Only called for a run with no checkpoint (nothing of it can be lost).
+    """
+    staging = job.run_dir.with_name(job.run_dir.name + ".copying")
+    shutil.rmtree(staging, ignore_errors=True)
+    shutil.copytree(source, staging)
+    meta = json.loads((staging / "run.json").read_text()) if (staging / "run.json").is_file() else {}
+    meta.update({"preset": job.preset, "scale": job.scale, "experiment": job.experiment,
+                 "copied_from": str(source)})
+    _write_atomic(staging / "run.json", json.dumps(meta, indent=2) + "\n")
+    if job.run_dir.exists():
+        shutil.rmtree(job.run_dir)
+    staging.replace(job.run_dir)
 
 
 def prepare(job: RunJob) -> None:

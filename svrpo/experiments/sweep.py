@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from collections import Counter
 from dataclasses import dataclass
@@ -11,7 +12,16 @@ from tqdm import tqdm
 
 from svrpo.envs import env_info
 from svrpo.experiments.backends import Backend
-from svrpo.experiments.jobs import JobResult, RunJob, RunStatus, plan, prepare, status
+from svrpo.experiments.jobs import (
+    JobResult,
+    RunJob,
+    RunStatus,
+    adopt,
+    identical_finished_run,
+    plan,
+    prepare,
+    status,
+)
 from svrpo.experiments.specs import ExperimentSpec
 
 
@@ -25,6 +35,9 @@ class SweepSummary:
     resumed: int
     started: int
     failed: tuple[JobResult, ...] = ()
+    reused: int = 0
+    """New runs copied from a finished run with the same config in another experiment (not
+    trained again; counted in `started` and `finished` too)."""
 
     @property
     def finished(self) -> int:
@@ -34,17 +47,21 @@ class SweepSummary:
     def line(self) -> str:
         """One line for the end of the sweep."""
         failed = f", {len(self.failed)} failed" if self.failed else ""
+        reused = (f" ({self.reused} copied from identical finished runs of other experiments)"
+                  if self.reused else "")
         return (f"{self.total} runs: {self.skipped} already done (skipped), {self.resumed} resumed, "
-                f"{self.started} started; {self.finished} finished{failed}")
+                f"{self.started} started{reused}; {self.finished} finished{failed}")
 
 
-def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool = False) -> SweepSummary:
+def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool = False,
+              reuse: bool = True) -> SweepSummary:
     """Train every run of `spec` under `root` that is not finished; return the counts.
 
     Checks every config, task and existing run directory before anything is written or
     started (ConfigError, EnvError, SpecError). A finished run (progress.csv with
     config.iterations rows and the final checkpoint) is skipped; any other run with a checkpoint
-    resumes from its latest one; the rest start from scratch.
+    resumes from its latest one; the rest start from scratch, except (with `reuse`) a new run
+    whose exact config already finished under another experiment of `root`: that run is copied.
     """
     jobs = plan(spec, root)
     for task in spec.tasks:
@@ -58,19 +75,33 @@ def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool 
          f"{counts[RunStatus.NEW]} new")
     summary = SweepSummary(len(jobs), counts[RunStatus.DONE], counts[RunStatus.PARTIAL],
                            counts[RunStatus.NEW])
+    sources = {job.run_dir: identical_finished_run(job, root) if reuse else None
+               for job, state in zip(jobs, statuses, strict=True) if state is RunStatus.NEW}
+    copies = {run_dir: source for run_dir, source in sources.items() if source is not None}
     if dry_run:
         for job, state in zip(jobs, statuses, strict=True):
+            copy = f", copy of {copies[job.run_dir]}" if job.run_dir in copies else ""
             print(f"{state.value:8s} {job.run_dir}  ({job.config.iterations} iterations x "
-                  f"N={job.config.batch_size}, {job.config.num_workers} workers)")
+                  f"N={job.config.batch_size}, {job.config.num_workers} workers{copy})")
         return SweepSummary(len(jobs), counts[RunStatus.DONE], 0, 0)
     if not todo:
         _say("nothing to run")
         return summary
     for job in todo:
+        if job.run_dir in copies:
+            adopt(job, copies[job.run_dir])
+            _say(f"copied {_relative(job.run_dir, root)} from {_relative(copies[job.run_dir], root)} "
+                 "(same config, already finished)")
+    todo = [job for job in todo if job.run_dir not in copies]
+    summary = SweepSummary(summary.total, summary.skipped, summary.resumed, summary.started,
+                           reused=len(copies))
+    if not todo:
+        return summary
+    for job in todo:
         prepare(job)
     _say(f"running {len(todo)} runs: {backend.describe()}; each run logs to RUN_DIR/train.log")
     failed = _run_with_progress(todo, backend, len(jobs), counts[RunStatus.DONE], root)
-    return SweepSummary(summary.total, summary.skipped, summary.resumed, summary.started, tuple(failed))
+    return dataclasses.replace(summary, failed=tuple(failed))
 
 
 def _run_with_progress(todo: list[RunJob], backend: Backend, total: int, done: int,
