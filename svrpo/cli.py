@@ -196,7 +196,8 @@ def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
         overrides["total_steps"] = args.steps
     if args.seeds is not None and args.seeds < 1:
         raise UsageError(f"--seeds must be >= 1; got {args.seeds}")
-    spec = load_spec(args.spec).with_changes(args.scale, args.seeds, overrides)
+    tasks = None if args.tasks is None else [task.strip() for task in args.tasks.split(",") if task.strip()]
+    spec = load_spec(args.spec).with_changes(args.scale, args.seeds, overrides, tasks)
     backend = _sweep_backend(args)
     root = Path(args.root)
     if args.backend == "ray":
@@ -305,6 +306,8 @@ def make_parser() -> argparse.ArgumentParser:
     sweep.add_argument("spec", metavar="SPEC", help="figure1 | figure2 | figure3 | FILE.yaml")
     sweep.add_argument("--scale", default=None, choices=SCALES, help="default: the spec's (laptop)")
     sweep.add_argument("--seeds", type=int, default=None, help="seeds 0..N-1 (default: the spec's, 5)")
+    sweep.add_argument("--tasks", default=None, metavar="A,B",
+                       help="comma-separated task ids in place of the spec's (e.g. part of figure1)")
     sweep.add_argument("--root", default="runs", help="sweep root directory (default runs)")
     sweep.add_argument("--jobs", default="auto",
                        help="runs at a time: auto (as many as their sampling workers fit in the cores) or N")

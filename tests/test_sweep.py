@@ -72,6 +72,9 @@ def test_yaml_spec_and_command_line_changes(tmp_path: Path) -> None:
     config = changed.config("Hopper-v5", "svrpo-sgd", 1)
     assert (config.max_kl, config.cg_iters, config.hidden_sizes, config.seed) == (0.03, 5, (32, 32), 1)
     assert config.batch_size == make_preset("svrpo-sgd", "Hopper-v5", "laptop").batch_size
+    part = load_spec("figure1").with_changes(tasks=["Swimmer-v5", "Hopper-v5"])
+    assert part.tasks == ("Swimmer-v5", "Hopper-v5") and part.directory == "figure1-laptop"
+    assert part.presets == load_spec("figure1").presets
 
 
 @pytest.mark.parametrize(
@@ -92,6 +95,8 @@ def test_yaml_spec_and_command_line_changes(tmp_path: Path) -> None:
         (None, ["figure2", "--max_kll", "0.1"], "did you mean max_kl"),
         (None, ["figure2", "--jobs", "many"], "--jobs"),
         (None, ["figure2", "--minibatch_size", "999999"], "minibatch_size"),
+        (None, ["figure1", "--tasks", "Swimmer-v5,Hoper-v5"], "Hopper-v5"),
+        (None, ["figure1", "--tasks", ","], "non-empty list"),
     ],
 )
 def test_bad_sweep_input_one_line_exit_2_nothing_written(

@@ -68,9 +68,14 @@ class ExperimentSpec:
         return make_preset(preset, task, self.scale).replace(seed=seed, **self.overrides)
 
     def with_changes(self, scale: str | None = None, seeds: int | None = None,
-                     overrides: dict[str, Any] | None = None) -> ExperimentSpec:
-        """A copy with the command line's --scale, --seeds N (seeds 0..N-1) and --FIELD values."""
+                     overrides: dict[str, Any] | None = None,
+                     tasks: list[str] | None = None) -> ExperimentSpec:
+        """A copy with the command line's --scale, --seeds N (seeds 0..N-1), --tasks A,B and
+        --FIELD values. --tasks runs part of a figure (its runs land where the whole figure's
+        would, so a later sweep of the whole figure only adds the missing tasks)."""
         changes: dict[str, Any] = {}
+        if tasks is not None:
+            changes["tasks"] = _string_list(tasks, "--tasks", "command line")
         if scale is not None:
             changes["scale"] = _check_scale(scale)
         if seeds is not None:
