@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import csv
 import json
 import os
 import platform
@@ -37,14 +36,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a checkout, uninstalled
 
 from svrpo import checkpoint  # noqa: E402
-from svrpo.logging import WALL_CLOCK_COLUMNS  # noqa: E402
+from tests.helpers import nested_equal, progress_rows, without_clock  # noqa: E402
 
 FAULT_KINDS = ("trainer", "startup", "worker")
 FAULT_WEIGHTS = (0.6, 0.15, 0.25)
@@ -97,12 +95,6 @@ def reap(proc: subprocess.Popen[bytes]) -> None:
         os.killpg(proc.pid, signal.SIGKILL)
 
 
-def rows_without_wall_clock(run_dir: Path) -> list[dict[str, str]]:
-    with open(run_dir / "progress.csv", newline="") as handle:
-        rows = list(csv.DictReader(handle))
-    return [{k: v for k, v in row.items() if k not in WALL_CLOCK_COLUMNS} for row in rows]
-
-
 def final_state(run_dir: Path, iterations: int) -> dict[str, Any]:
     state = checkpoint.load(checkpoint.checkpoint_path(run_dir / "checkpoints", iterations))
     keys = ("policy", "baseline", "normalizer", "generator", "probe_generator", "baseline_generator",
@@ -111,18 +103,7 @@ def final_state(run_dir: Path, iterations: int) -> dict[str, Any]:
 
 
 def differing_keys(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
-    def equal(x: Any, y: Any) -> bool:
-        if isinstance(x, dict):
-            return isinstance(y, dict) and x.keys() == y.keys() and all(equal(x[k], y[k]) for k in x)
-        if isinstance(x, (list, tuple)):
-            return isinstance(y, type(x)) and len(x) == len(y) and all(map(equal, x, y))
-        if isinstance(x, torch.Tensor):
-            return isinstance(y, torch.Tensor) and torch.equal(x, y)
-        if isinstance(x, np.ndarray):
-            return isinstance(y, np.ndarray) and np.array_equal(x, y)
-        return bool(x == y)
-
-    return [key for key in a if not equal(a[key], b.get(key))]
+    return [key for key in a if not nested_equal(a[key], b.get(key))]
 
 
 def run_reference(args: argparse.Namespace, work: Path) -> tuple[Path, float, float]:
@@ -220,7 +201,8 @@ def main() -> None:
         print(f"reference: {reference_s:.0f} s ({iteration_s:.2f} s/iteration, start-up {startup_s:.1f} s)")
         soak = run_soak(args, work, iteration_s, startup_s)
         log_text = soak["log"].read_text()
-        rows, expected = rows_without_wall_clock(soak["run_dir"]), rows_without_wall_clock(reference)
+        rows = without_clock(progress_rows(soak["run_dir"]))
+        expected = without_clock(progress_rows(reference))
         iterations = [int(row["iteration"]) for row in rows]
         pairs = zip(rows, expected, strict=False)
         first_difference = next((int(want["iteration"]) for got, want in pairs if got != want), None)

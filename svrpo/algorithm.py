@@ -27,6 +27,7 @@ import torch
 
 from svrpo import checkpoint
 from svrpo.advantages import generalized_advantages, standardize
+from svrpo.allocator import keep_freed_memory
 from svrpo.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction
 from svrpo.config import Config, ConfigError
 from svrpo.logging import RunLogger, truncate_progress
@@ -97,6 +98,7 @@ def make_sampler(config: Config) -> Sampler:
 def build_run(config: Config) -> Run:
     """Compose the parts of a run from its config (the one place where they are chosen)."""
     torch.set_num_threads(config.torch_threads)
+    keep_freed_memory()  # the update reuses large buffers: no page faults per allocation
     sampler = make_sampler(config)
     info = sampler.info
     torch.manual_seed(config.seed)

@@ -5,7 +5,6 @@ Ray too."""
 
 from __future__ import annotations
 
-import csv
 import os
 import re
 import signal
@@ -22,7 +21,7 @@ from svrpo.cli import main
 from svrpo.experiments import LocalBackend, load_spec, run_sweep
 from svrpo.experiments.ray_backend import RayBackend
 from svrpo.experiments.ray_task import LOCK_NAME, StorageError, run_task
-from svrpo.logging import WALL_CLOCK_COLUMNS
+from tests.helpers import progress_rows, without_clock
 
 SPEC = """\
 name: tiny
@@ -73,17 +72,6 @@ def _spec(tmp_path: Path, presets: str, steps: int) -> Path:
     return path
 
 
-def _rows(run_dir: Path) -> list[dict[str, str]]:
-    if not (run_dir / "progress.csv").is_file():
-        return []
-    with open(run_dir / "progress.csv", newline="") as handle:
-        return [row for row in csv.DictReader(handle) if None not in row.values()]
-
-
-def _without_clock(rows: list[dict[str, str]]) -> list[dict[str, str]]:
-    return [{k: v for k, v in row.items() if k not in WALL_CLOCK_COLUMNS} for row in rows]
-
-
 def _run_dirs(root: Path) -> dict[Path, set[str]]:
     """Each run directory (relative) -> its files and folders, the per-run lock left aside."""
     return {path.parent.relative_to(root): {p.name for p in path.parent.iterdir()} - {LOCK_NAME}
@@ -112,9 +100,9 @@ def test_ray_sweep_matches_the_local_backend(ray_instance: None, keep_sigterm: N
     assert not (tmp_path / "unused").exists(), "--storage replaces --root"
     assert _run_dirs(storage) == _run_dirs(local) and len(_run_dirs(local)) == 2
     for run_dir in _run_dirs(local):
-        rows = _rows(storage / run_dir)
+        rows = progress_rows(storage / run_dir, complete_only=True)
         assert [int(row["env_steps"]) for row in rows] == [1000, 2000]
-        assert _without_clock(rows) == _without_clock(_rows(local / run_dir))
+        assert without_clock(rows) == without_clock(progress_rows(local / run_dir, complete_only=True))
     again = main(["sweep", str(spec), "--backend", "ray", "--storage", str(storage)])
     assert again == 0 and "2 already done (skipped)" in capsys.readouterr().out
 
@@ -134,15 +122,17 @@ def test_a_killed_worker_or_training_process_is_retried_and_resumes(ray_instance
         sweep = pool.submit(run_sweep, spec, root, RayBackend(max_retries=3))
         # 1. The Ray worker running the task dies: Ray retries the task; the orphaned training
         # process checkpoints and stops, and the retry waits for it (the run's lock).
-        _wait_for(lambda: attempts() and len(_rows(run_dir)) >= 2, "two iterations")
-        seen_first = _rows(run_dir)
+        _wait_for(lambda: attempts() and len(progress_rows(run_dir, complete_only=True)) >= 2,
+                  "two iterations")
+        seen_first = progress_rows(run_dir, complete_only=True)
         os.kill(attempts()[0][0], signal.SIGKILL)
         # 2. The retry's training process dies: the task fails and Ray retries it again.
         _wait_for(lambda: len(attempts()) == 2 and "resuming from" in log.read_text(), "a retry")
-        resumed = len(_rows(run_dir))
+        resumed = len(progress_rows(run_dir, complete_only=True))
         # Two new rows: the first one's checkpoint is written before the second row is.
-        _wait_for(lambda: len(_rows(run_dir)) >= resumed + 2, "iterations of the retry")
-        seen_second = _rows(run_dir)
+        _wait_for(lambda: len(progress_rows(run_dir, complete_only=True)) >= resumed + 2,
+                  "iterations of the retry")
+        seen_second = progress_rows(run_dir, complete_only=True)
         os.kill(attempts()[1][1], signal.SIGKILL)
         summary = sweep.result(timeout=120)
     assert not summary.failed and summary.finished == 1
@@ -151,14 +141,15 @@ def test_a_killed_worker_or_training_process_is_retried_and_resumes(ray_instance
     # A stop can land between logging an iteration's row and checkpointing it: the last row
     # seen before each kill may be redone, none before it.
     assert resumed_at[0] >= len(seen_first) - 1 and resumed_at[1] >= len(seen_second) - 1, resumed_at
-    rows = _rows(run_dir)
+    rows = progress_rows(run_dir, complete_only=True)
     # Finished iterations were not redone: their rows, wall clock included, are the first ones.
     assert rows[:len(seen_first) - 1] == seen_first[:-1]
     assert rows[:len(seen_second) - 1] == seen_second[:-1]
     # ... and the run ends exactly as an undisturbed one.
     reference = tmp_path / "reference"
     assert not run_sweep(spec, reference, LocalBackend()).failed
-    assert _without_clock(rows) == _without_clock(_rows(reference / run_dir.relative_to(root)))
+    undisturbed = progress_rows(reference / run_dir.relative_to(root), complete_only=True)
+    assert without_clock(rows) == without_clock(undisturbed)
     assert len(rows) == 20
 
 
@@ -171,7 +162,7 @@ def test_sigterm_stops_a_ray_sweep_and_its_runs_with_a_checkpoint(
     run_dir = root / "tiny-laptop" / "InvertedPendulum-v5" / "trpo" / "seed0"
 
     def stop_after_two_iterations() -> None:
-        _wait_for(lambda: len(_rows(run_dir)) >= 2, "two iterations")
+        _wait_for(lambda: len(progress_rows(run_dir, complete_only=True)) >= 2, "two iterations")
         os.kill(os.getpid(), signal.SIGTERM)  # what a batch scheduler sends to the sweep
 
     with ThreadPoolExecutor(1) as pool:
@@ -182,7 +173,7 @@ def test_sigterm_stops_a_ray_sweep_and_its_runs_with_a_checkpoint(
     assert "run the same command again to resume" in capsys.readouterr().err
     assert "interrupted: the checkpoint of iteration" in (run_dir / "train.log").read_text()
     assert status(plan(load_spec(str(spec)), root)[0]) is RunStatus.PARTIAL
-    assert 2 <= len(_rows(run_dir)) < 200
+    assert 2 <= len(progress_rows(run_dir, complete_only=True)) < 200
 
 
 @pytest.mark.parametrize(

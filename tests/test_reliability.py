@@ -9,7 +9,6 @@ normaliser's moments and the baseline's mini-batch generator must all survive a 
 from __future__ import annotations
 
 import contextlib
-import csv
 import itertools
 import json
 import math
@@ -26,7 +25,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 import torch
 from hypothesis import HealthCheck, given, settings
@@ -37,9 +35,9 @@ from svrpo.algorithm import build_run, train
 from svrpo.baselines import MlpValueFunction
 from svrpo.config import Config, ConfigError, coerce_field, field_names, make_preset
 from svrpo.estimators import GradientEstimator
-from svrpo.logging import WALL_CLOCK_COLUMNS
 from svrpo.parameters import flat_parameters
 from svrpo.sampling import Sampler
+from tests.helpers import nested_equal, progress_rows, without_clock
 from tests.nan_envs import NAN_REWARD_ID
 
 ENV = "InvertedPendulum-v5"
@@ -64,13 +62,6 @@ def _cli_args(out: Path, **changes: Any) -> list[str]:
     return args
 
 
-def _rows(run_dir: Path) -> list[dict[str, str]]:
-    """progress.csv rows as text, wall-clock columns left out (they differ between runs)."""
-    with open(run_dir / "progress.csv", newline="") as handle:
-        rows = list(csv.DictReader(handle))
-    return [{k: v for k, v in row.items() if k not in WALL_CLOCK_COLUMNS} for row in rows]
-
-
 def _final_state(run_dir: Path) -> dict[str, Any]:
     """What the last checkpoint says the run learned and where its random streams stand."""
     state = checkpoint.load(checkpoint.checkpoint_path(run_dir / "checkpoints", ITERATIONS))
@@ -79,29 +70,16 @@ def _final_state(run_dir: Path) -> dict[str, Any]:
     return {key: state[key] for key in keys}
 
 
-def _equal(a: Any, b: Any) -> bool:
-    """Exact equality of nested checkpoint values (tensors and arrays bit for bit)."""
-    if isinstance(a, dict):
-        return isinstance(b, dict) and a.keys() == b.keys() and all(_equal(a[k], b[k]) for k in a)
-    if isinstance(a, (list, tuple)):
-        return isinstance(b, type(a)) and len(a) == len(b) and all(map(_equal, a, b))
-    if isinstance(a, torch.Tensor):
-        return isinstance(b, torch.Tensor) and torch.equal(a, b)
-    if isinstance(a, np.ndarray):
-        return isinstance(b, np.ndarray) and a.dtype == b.dtype and np.array_equal(a, b)
-    return bool(a == b)
-
-
 def _assert_same_run(run_dir: Path, reference: Path) -> None:
     """Row for row the reference's progress.csv (no row missing or repeated), and the same final
     checkpoint: policy, baseline with its optimizer, normaliser, every generator, every env."""
-    rows, expected = _rows(run_dir), _rows(reference)
+    rows, expected = without_clock(progress_rows(run_dir)), without_clock(progress_rows(reference))
     assert [r["iteration"] for r in rows] == [str(i) for i in range(1, ITERATIONS + 1)]
     for got, want in zip(rows, expected, strict=True):
         assert got == want, f"iteration {want['iteration']} differs"
     final, expected_final = _final_state(run_dir), _final_state(reference)
     for key in expected_final:
-        assert _equal(final[key], expected_final[key]), f"final checkpoint differs in {key}"
+        assert nested_equal(final[key], expected_final[key]), f"final checkpoint differs in {key}"
 
 
 @pytest.fixture(scope="module")
@@ -188,7 +166,7 @@ def test_ctrl_c_writes_a_checkpoint_exits_130_and_resume_ends_identical(
     assert f"interrupted: the checkpoint of iteration {iteration} is in" in output
     # Row 2 was logged; the signal may land before iteration 2's state was captured.
     assert 1 <= iteration < ITERATIONS
-    assert len(_rows(run_dir)) in (iteration, iteration + 1)  # at most one row past the checkpoint
+    assert len(progress_rows(run_dir)) in (iteration, iteration + 1)  # at most one row past the checkpoint
     assert cli.main(["train", "--resume", str(run_dir), "--no-progress"]) == 0
     _assert_same_run(run_dir, reference)
 
@@ -290,7 +268,8 @@ def test_overwrite_replaces_a_run_and_refusal_leaves_it_untouched(tmp_path: Path
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == first
     assert cli.main([*tiny, "--seed", "1", "--batch_size", "100", "--overwrite"]) == 0
     assert Config.from_json((out / "config.json").read_text()).seed == 1
-    assert [r["env_steps"] for r in _rows(out)] == ["100", "200", "300", "400"]  # none of the old run's rows
+    # None of the old run's rows:
+    assert [r["env_steps"] for r in progress_rows(out)] == ["100", "200", "300", "400"]
     assert [p.name for p in checkpoint.list_checkpoints(out / "checkpoints")] == ["iter_000004.pt"]
     assert len(list((out / "tensorboard").iterdir())) == 1  # the old run's events are gone
 
@@ -304,7 +283,7 @@ def test_training_afresh_in_a_used_directory_leaves_nothing_of_the_old_run(tmp_p
     train(config.replace(total_steps=400, seed=1), tmp_path, show_progress=False)
     assert [p.name for p in checkpoint.list_checkpoints(tmp_path / "checkpoints")] == [
         "iter_000002.pt", "iter_000001.pt"]
-    assert [r["iteration"] for r in _rows(tmp_path)] == ["1", "2"]
+    assert [r["iteration"] for r in progress_rows(tmp_path)] == ["1", "2"]
     assert Config.from_json((tmp_path / "config.json").read_text()).seed == 1
 
 
@@ -398,7 +377,7 @@ def test_nan_rewards_skip_the_update_keep_the_parameters_and_are_counted(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], workers: int) -> None:
     env_id = NAN_REWARD_ID if workers == 0 else f"tests.nan_envs:{NAN_REWARD_ID}"
     train(_numerics_config(env_id).replace(num_workers=workers), tmp_path, show_progress=False)
-    rows = _rows(tmp_path)
+    rows = progress_rows(tmp_path)
     assert [r["nonfinite_batches"] for r in rows] == ["0", "1", "1"]
     assert rows[1]["mean_kl"] == "" and rows[2]["mean_kl"] != ""  # skipped, then training goes on
     assert "iteration 2: non-finite rewards, advantages, value targets in the batch; update skipped" in \
@@ -430,7 +409,7 @@ def test_an_update_that_makes_parameters_non_finite_is_undone_and_counted(
         monkeypatch.setattr(MlpValueFunction, "fit", poison_on_second_call(
             MlpValueFunction.fit, lambda args: args[0].network[0].weight))
     train(_numerics_config(ENV), tmp_path, show_progress=False)
-    assert [r["nonfinite_batches"] for r in _rows(tmp_path)] == ["0", "1", "1"]
+    assert [r["nonfinite_batches"] for r in progress_rows(tmp_path)] == ["0", "1", "1"]
     err = capsys.readouterr().err
     assert f"iteration 2: the update made the {part} non-finite; restored the parameters" in err
     assert _same_tensors(_learned(tmp_path, 1), _learned(tmp_path, 2))

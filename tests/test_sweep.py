@@ -3,7 +3,6 @@ tiny sweep that skips finished runs and resumes an interrupted one."""
 
 from __future__ import annotations
 
-import csv
 import json
 import shutil
 import subprocess
@@ -16,7 +15,7 @@ import pytest
 from svrpo.cli import main
 from svrpo.config import make_preset
 from svrpo.experiments import NAMED_EXPERIMENTS, LocalBackend, SpecError, load_spec, plan
-from svrpo.logging import WALL_CLOCK_COLUMNS
+from tests.helpers import progress_rows, without_clock
 
 TINY_YAML = """\
 name: tiny
@@ -143,15 +142,6 @@ def _sweep(spec: Path, root: Path) -> subprocess.CompletedProcess[str]:
                           capture_output=True, text=True, timeout=600, cwd=spec.parent)
 
 
-def _rows(run_dir: Path) -> list[dict[str, str]]:
-    with open(run_dir / "progress.csv", newline="") as handle:
-        return list(csv.DictReader(handle))
-
-
-def _without_clock(rows: list[dict[str, str]]) -> list[dict[str, str]]:
-    return [{k: v for k, v in row.items() if k not in WALL_CLOCK_COLUMNS} for row in rows]
-
-
 def _snapshot(root: Path) -> dict[Path, int]:
     return {path: path.stat().st_mtime_ns for path in root.rglob("*")}
 
@@ -168,7 +158,7 @@ def test_sweep_runs_the_grid_skips_finished_runs_and_resumes_interrupted_ones(tm
     run_dirs = [base / preset / f"seed{seed}" for preset in ("svrpo", "trpo") for seed in (0, 1)]
     original = {}
     for run_dir in run_dirs:
-        rows = _rows(run_dir)
+        rows = progress_rows(run_dir)
         assert [int(r["env_steps"]) for r in rows] == [1000, 2000]
         meta = json.loads((run_dir / "run.json").read_text())
         assert (meta["preset"], meta["scale"], meta["experiment"]) == (run_dir.parent.name, "laptop", "tiny")
@@ -194,11 +184,11 @@ def test_sweep_runs_the_grid_skips_finished_runs_and_resumes_interrupted_ones(tm
     assert third.returncode == 0, third.stderr
     assert "2 already done (skipped), 1 resumed, 1 started; 2 finished" in third.stdout
     for run_dir in run_dirs:
-        rows = _rows(run_dir)
+        rows = progress_rows(run_dir)
         assert len(rows) == 2 and (run_dir / "checkpoints" / "iter_000002.pt").is_file()
         # Resumed and restarted runs continue exactly as the uninterrupted run did.
-        assert _without_clock(rows) == _without_clock(original[run_dir])
-    assert _rows(partial)[0] == original[partial][0], "iteration 1 was re-run instead of resumed"
+        assert without_clock(rows) == without_clock(original[run_dir])
+    assert progress_rows(partial)[0] == original[partial][0], "iteration 1 was re-run instead of resumed"
     assert all(_snapshot(run_dir) == files for run_dir, files in untouched.items())
 
 
@@ -225,7 +215,7 @@ def test_sigterm_stops_the_sweep_and_its_runs_with_a_checkpoint(tmp_path: Path) 
     assert "interrupted" in (run_dir / "train.log").read_text()
     job = plan(load_spec(str(spec)), root)[0]
     assert status(job) is RunStatus.PARTIAL
-    assert 2 <= len(_rows(run_dir)) < 200
+    assert 2 <= len(progress_rows(run_dir)) < 200
 
 
 def test_a_run_shared_by_two_experiments_is_copied_not_trained_again(tmp_path: Path) -> None:
@@ -244,12 +234,13 @@ def test_a_run_shared_by_two_experiments_is_copied_not_trained_again(tmp_path: P
     assert ("2 started (1 copied from identical finished runs of other experiments); 2 finished"
             in result.stdout)
     copy = root / "other-laptop" / "InvertedPendulum-v5" / "svrpo" / "seed0"
-    assert _rows(copy) == _rows(source)  # wall-clock columns too: nothing was trained again
+    assert len(progress_rows(source)) == 2
+    assert progress_rows(copy) == progress_rows(source)  # wall-clock columns too: nothing was trained again
     meta = json.loads((copy / "run.json").read_text())
     assert (meta["experiment"], meta["copied_from"]) == ("other", str(source))
     assert (copy / "checkpoints" / "iter_000002.pt").is_file()
     assert not list(copy.parent.glob("*.copying"))
-    assert len(_rows(root / "other-laptop" / "InvertedPendulum-v5" / "svrpo-sgd" / "seed0")) == 2
+    assert len(progress_rows(root / "other-laptop" / "InvertedPendulum-v5" / "svrpo-sgd" / "seed0")) == 2
 
     # The premise of copying: training the same config again gives the same numbers.
     retrained = subprocess.run([sys.executable, "-m", "svrpo.cli", "sweep", str(second), "--root",
@@ -257,7 +248,7 @@ def test_a_run_shared_by_two_experiments_is_copied_not_trained_again(tmp_path: P
                                timeout=600)
     assert retrained.returncode == 0, retrained.stderr
     fresh = tmp_path / "fresh" / "other-laptop" / "InvertedPendulum-v5" / "svrpo" / "seed0"
-    assert _without_clock(_rows(fresh)) == _without_clock(_rows(source))
+    assert without_clock(progress_rows(fresh)) == without_clock(progress_rows(source))
 
     # Any config difference (here the discount) means another run: trained, not copied.
     third = tmp_path / "third.yaml"

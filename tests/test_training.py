@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import pytest
@@ -10,20 +9,10 @@ import torch
 
 from svrpo.algorithm import build_run, surrogate_batch, train
 from svrpo.config import make_preset
-from svrpo.logging import WALL_CLOCK_COLUMNS
 from svrpo.objectives import mean_kl_from
 from svrpo.parameters import flat_parameters
 from svrpo.update import update_policy
-
-
-def _rows(path: Path) -> list[dict[str, str]]:
-    with open(path, newline="") as handle:
-        return list(csv.DictReader(handle))
-
-
-def _without_wall_clock(rows: list[dict[str, str]]) -> list[dict[str, str]]:
-    """Rows minus the machine-dependent columns, for run-to-run comparisons."""
-    return [{k: v for k, v in r.items() if k not in WALL_CLOCK_COLUMNS} for r in rows]
+from tests.helpers import progress_rows, without_clock
 
 
 def _small(preset: str, env_id: str = "InvertedPendulum-v5", **changes: object):
@@ -67,7 +56,7 @@ def test_variance_probe_does_not_change_training_and_shows_svrg_helps(tmp_path: 
     off = on.replace(variance_probe_batches=0)
     train(on, tmp_path / "on", show_progress=False)
     train(off, tmp_path / "off", show_progress=False)
-    rows_on, rows_off = _rows(tmp_path / "on" / "progress.csv"), _rows(tmp_path / "off" / "progress.csv")
+    rows_on, rows_off = progress_rows(tmp_path / "on"), progress_rows(tmp_path / "off")
     for a, b in zip(rows_on, rows_off, strict=True):
         assert a["average_return"] == b["average_return"]
         assert a["mean_kl"] == b["mean_kl"]
@@ -80,11 +69,11 @@ def test_same_seed_same_progress(tmp_path: Path) -> None:
     config = _small("svrpo", num_workers=2)
     train(config, tmp_path / "a", show_progress=False)
     train(config, tmp_path / "b", show_progress=False)
-    a, b = _rows(tmp_path / "a" / "progress.csv"), _rows(tmp_path / "b" / "progress.csv")
+    a, b = progress_rows(tmp_path / "a"), progress_rows(tmp_path / "b")
     assert len(a) == config.iterations
-    assert _without_wall_clock(a) == _without_wall_clock(b)
+    assert without_clock(a) == without_clock(b)
     train(config.replace(seed=1), tmp_path / "c", show_progress=False)
-    assert _without_wall_clock(_rows(tmp_path / "c" / "progress.csv")) != _without_wall_clock(a)
+    assert without_clock(progress_rows(tmp_path / "c")) != without_clock(a)
 
 
 def test_resume_continues_identically(tmp_path: Path) -> None:
@@ -94,9 +83,9 @@ def test_resume_continues_identically(tmp_path: Path) -> None:
     partial = full.replace(total_steps=2000)
     train(partial, tmp_path / "part", show_progress=False)
     train(full, tmp_path / "part", resume=True, show_progress=False)
-    a, b = _rows(tmp_path / "full" / "progress.csv"), _rows(tmp_path / "part" / "progress.csv")
+    a, b = progress_rows(tmp_path / "full"), progress_rows(tmp_path / "part")
     assert [r["iteration"] for r in b] == ["1", "2", "3", "4"]
-    assert _without_wall_clock(a) == _without_wall_clock(b)
+    assert without_clock(a) == without_clock(b)
 
 
 @pytest.mark.parametrize("preset", ["svrpo", "trpo"])
@@ -113,7 +102,7 @@ def test_learns_inverted_pendulum(preset: str, seed: int, tmp_path: Path) -> Non
                     **({} if preset == "trpo" else {"minibatch_size": 500}))
     train(config, tmp_path, show_progress=False)
     # An iteration in which no episode ended (1000-step episodes late in training) has no return.
-    returns = [float(r["average_return"]) for r in _rows(tmp_path / "progress.csv") if r["average_return"]]
+    returns = [float(r["average_return"]) for r in progress_rows(tmp_path) if r["average_return"]]
     first, last_five = returns[0], sum(returns[-5:]) / len(returns[-5:])
     assert first < 15
     assert last_five > 40, returns
