@@ -149,10 +149,15 @@ def plot_panels(
             mean, low, high = mean_and_ci(stacked)
             if log_scale:
                 mean, low, high = 10.0**mean, 10.0**low, 10.0**high
+            # Iterations in which no seed finished an episode have no value: drawing only the
+            # others keeps the line whole (Swimmer's 1000-step episodes end every few iterations).
+            shown = np.isfinite(mean)
             seeds = f"{len(runs)} seed{'s' if len(runs) > 1 else ''}"
-            (line,) = axis.plot(x, mean, label=f"{label} ({seeds})", color=PRESET_COLORS.get(label))
+            (line,) = axis.plot(x[shown], mean[shown], label=f"{label} ({seeds})",
+                                color=PRESET_COLORS.get(label))
             if len(runs) > 1:
-                axis.fill_between(x, low, high, color=line.get_color(), alpha=0.2, linewidth=0)
+                axis.fill_between(x[shown], low[shown], high[shown], color=line.get_color(), alpha=0.2,
+                                  linewidth=0)
         if reference is not None:
             axis.axhline(reference, color="grey", linestyle="--", linewidth=1)
         if log_scale:

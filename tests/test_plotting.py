@@ -161,3 +161,27 @@ def test_plot_bad_input_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert main(["plot", str(tmp_path / "missing")]) == 2
     assert main(["plot", str(tmp_path)]) == 2
     assert "no run directory" in capsys.readouterr().err
+
+
+def test_iterations_without_finished_episodes_do_not_break_the_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Swimmer's episodes end every few iterations: the curve joins the iterations that have one."""
+    from matplotlib.figure import Figure
+
+    from svrpo.plotting import load_curve, plot_panels
+
+    returns = [math.nan if k % 3 else float(k) for k in range(1, ITERATIONS + 1)]
+    runs = [load_curve(write_run(tmp_path, "Swimmer-v5", "trpo", seed, returns, experiment=None))
+            for seed in (0, 1)]
+    drawn: list[np.ndarray] = []
+    savefig = Figure.savefig
+
+    def capture(figure: Figure, *args: object, **kwargs: object) -> None:
+        drawn.extend(np.asarray(line.get_ydata(), dtype=float) for line in figure.axes[0].get_lines())
+        savefig(figure, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", capture)
+    plot_panels({"Swimmer-v5": {"trpo": runs}}, tmp_path / "curve.png", "return")
+    assert len(drawn) == 1
+    assert drawn[0].tolist() == [3.0, 6.0, 9.0, 12.0, 15.0, 18.0]
