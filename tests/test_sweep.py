@@ -233,6 +233,7 @@ def test_a_run_shared_by_two_experiments_is_copied_not_trained_again(tmp_path: P
     assert result.returncode == 0, result.stderr
     assert ("2 started (1 copied from identical finished runs of other experiments); 2 finished"
             in result.stdout)
+    assert "2/2" in result.stderr  # the progress bar counts the copied run as done
     copy = root / "other-laptop" / "InvertedPendulum-v5" / "svrpo" / "seed0"
     assert len(progress_rows(source)) == 2
     assert progress_rows(copy) == progress_rows(source)  # wall-clock columns too: nothing was trained again

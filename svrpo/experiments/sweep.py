@@ -100,7 +100,7 @@ def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool 
     for job in todo:
         prepare(job)
     _say(f"running {len(todo)} runs: {backend.describe()}; each run logs to RUN_DIR/train.log")
-    failed = _run_with_progress(todo, backend, len(jobs), counts[RunStatus.DONE], root)
+    failed = _run_with_progress(todo, backend, len(jobs), counts[RunStatus.DONE] + len(copies), root)
     return dataclasses.replace(summary, failed=tuple(failed))
 
 
