@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import copy
 import math
-import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -28,6 +27,7 @@ import torch
 from svrpo import checkpoint
 from svrpo.advantages import generalized_advantages, standardize
 from svrpo.allocator import keep_freed_memory
+from svrpo.atomic import write_text_atomic
 from svrpo.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction
 from svrpo.config import Config, ConfigError
 from svrpo.logging import RunLogger, truncate_progress
@@ -392,12 +392,7 @@ def _write_config(run_dir: Path, config: Config) -> None:
     path, text = run_dir / "config.json", config.to_json() + "\n"
     if path.exists() and path.read_text() == text:
         return
-    temporary = path.with_name(path.name + ".tmp")
-    with open(temporary, "w") as handle:
-        handle.write(text)
-        handle.flush()
-        os.fsync(handle.fileno())
-    temporary.replace(path)
+    write_text_atomic(path, text)
 
 
 def _resume(run: Run, run_dir: Path) -> list[str]:

@@ -169,7 +169,6 @@ def sampling_vs_physics(
     }
 
 
-
 def sampling_cpu_efficiency(
     env_id: str, snapshot: PolicySnapshot, steps: int, repeats: int = 3, envs: int = 8, seed: int = 0
 ) -> dict[str, Any]:
@@ -214,6 +213,7 @@ def sampling_cpu_efficiency(
         "cpu_ratio": statistics.median(ours) / statistics.median(physics),
         "envs": envs, "replay_bit_exact": exact,
     }
+
 
 class _Timers:
     """Named wall-clock accumulators; `wrap` times every call of a function under a name."""

@@ -10,7 +10,6 @@ next older checkpoint, so one damaged file costs at most `checkpoint_every` iter
 
 from __future__ import annotations
 
-import os
 import pickle
 import re
 from pathlib import Path
@@ -18,6 +17,8 @@ from typing import Any
 
 import numpy as np
 import torch
+
+from svrpo.atomic import replace_atomically
 
 
 class CheckpointError(RuntimeError):
@@ -64,18 +65,8 @@ def from_storable(value: Any) -> Any:
 
 def save_atomic(state: dict[str, Any], path: Path) -> None:
     """Write `state` to `path` via a fsynced temporary file and an atomic rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(path.name + ".tmp")
-    with open(temporary, "wb") as handle:
-        torch.save(to_storable(state), handle)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(temporary, path)
-    directory = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(directory)
-    finally:
-        os.close(directory)
+    storable = to_storable(state)
+    replace_atomically(path, lambda handle: torch.save(storable, handle))
 
 
 def load(path: Path) -> dict[str, Any]:

@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from svrpo.atomic import write_text_atomic
 from svrpo.checkpoint import CheckpointError
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, make_preset
 from svrpo.envs import EnvError, env_info
@@ -62,10 +63,6 @@ def _default_out(config: Config, preset: str) -> Path:
     return Path("runs") / config.env_id / preset / f"seed{config.seed}"
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def _train(args: argparse.Namespace, extra: list[str]) -> int:
     if args.resume is not None:
         run_dir = Path(args.resume)
@@ -100,18 +97,18 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
     if args.resume is None:
         run_dir.mkdir(parents=True, exist_ok=True)
         # config.json first (atomically): a run killed at any later moment can be resumed.
-        (run_dir / "config.json.tmp").write_text(config.to_json() + "\n")
-        (run_dir / "config.json.tmp").replace(run_dir / "config.json")
+        write_text_atomic(run_dir / "config.json", config.to_json() + "\n")
         meta = {"preset": preset, "scale": args.scale, "argv": sys.argv[1:],
                 "python": platform.python_version()}
         (run_dir / "run.json").write_text(json.dumps(meta, indent=2) + "\n")
 
     from svrpo.algorithm import TrainingError, train
+    from svrpo.experiments.runner import raise_keyboard_interrupt
 
     print(f"training {preset} on {config.env_id}: {config.iterations} iterations x "
           f"N={config.batch_size} steps -> {run_dir}", file=sys.stderr)
     # SIGTERM (a scheduler or `kill`) takes the Ctrl-C path: checkpoint the last iteration, exit.
-    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGTERM, raise_keyboard_interrupt)
     try:
         run = train(config, run_dir, resume=args.resume is not None, show_progress=not args.no_progress)
     except KeyboardInterrupt:
@@ -204,8 +201,6 @@ def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
         # Tasks run in other working directories, maybe on other nodes: an absolute path (not
         # resolved, so a symlinked mount point stays the name every node knows).
         root = Path(os.path.abspath(args.storage if args.storage is not None else args.root))
-    import signal
-
     from svrpo.experiments.runner import raise_keyboard_interrupt
 
     signal.signal(signal.SIGTERM, raise_keyboard_interrupt)  # stop like Ctrl-C: runs checkpoint

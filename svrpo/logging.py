@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 import sys
@@ -10,6 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from tqdm import tqdm
+
+from svrpo.atomic import write_text_atomic
 
 # Columns that depend on the machine, not on the seed: left out of determinism checks.
 WALL_CLOCK_COLUMNS = ("wall_time", "time_sampling", "time_update", "steps_per_second")
@@ -35,14 +38,11 @@ def truncate_progress(path: Path, keep_iterations: int) -> list[int]:
     header, body = rows[0], rows[1:]
     column = header.index("iteration")
     kept = [row for row in body if len(row) == len(header) and _iteration(row[column]) < keep_iterations]
-    temporary = path.with_name(path.name + ".tmp")
-    with open(temporary, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(header)
-        writer.writerows(kept)
-        handle.flush()
-        os.fsync(handle.fileno())
-    temporary.replace(path)
+    text = io.StringIO(newline="")
+    writer = csv.writer(text)
+    writer.writerow(header)
+    writer.writerows(kept)
+    write_text_atomic(path, text.getvalue())
     return [int(row[column]) for row in kept]
 
 

@@ -18,6 +18,7 @@ from enum import Enum
 from pathlib import Path
 
 from svrpo import checkpoint
+from svrpo.atomic import write_text_atomic
 from svrpo.config import Config, differing_fields
 from svrpo.experiments.specs import ExperimentSpec, SpecError
 
@@ -150,7 +151,7 @@ def adopt(job: RunJob, source: Path) -> None:
     meta = json.loads((staging / "run.json").read_text()) if (staging / "run.json").is_file() else {}
     meta.update({"preset": job.preset, "scale": job.scale, "experiment": job.experiment,
                  "copied_from": str(source)})
-    _write_atomic(staging / "run.json", json.dumps(meta, indent=2) + "\n")
+    write_text_atomic(staging / "run.json", json.dumps(meta, indent=2) + "\n")
     if job.run_dir.exists():
         shutil.rmtree(job.run_dir)
     staging.replace(job.run_dir)
@@ -161,19 +162,12 @@ def prepare(job: RunJob) -> None:
     job.run_dir.mkdir(parents=True, exist_ok=True)
     config_path = job.run_dir / "config.json"
     if not config_path.is_file():
-        _write_atomic(config_path, job.config.to_json() + "\n")
+        write_text_atomic(config_path, job.config.to_json() + "\n")
     meta_path = job.run_dir / "run.json"
     if not meta_path.is_file():
         meta = {"preset": job.preset, "scale": job.scale, "experiment": job.experiment,
                 "argv": sys.argv[1:], "python": platform.python_version()}
-        _write_atomic(meta_path, json.dumps(meta, indent=2) + "\n")
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    """A crash leaves the old file or the new one, never half of it."""
-    temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text(text)
-    temporary.replace(path)
+        write_text_atomic(meta_path, json.dumps(meta, indent=2) + "\n")
 
 
 def execute(run_dir: Path) -> JobResult:
