@@ -28,7 +28,7 @@ from svrpo import checkpoint
 from svrpo.advantages import generalized_advantages, standardize
 from svrpo.allocator import keep_freed_memory
 from svrpo.atomic import write_text_atomic
-from svrpo.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction
+from svrpo.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction, explained_variance
 from svrpo.config import Config, ConfigError
 from svrpo.logging import RunLogger, truncate_progress
 from svrpo.normalization import RunningMeanStd
@@ -90,9 +90,8 @@ def _seeded(seed: int) -> torch.Generator:
 
 def make_sampler(config: Config) -> Sampler:
     """The run's Sampler in its initial state (also used to replace one whose worker died)."""
-    return Sampler(
-        config.env_id, config.num_workers, config.envs_per_worker, config.seed, config.max_episode_steps
-    )
+    return Sampler(config.env_id, config.num_workers, config.envs_per_worker, config.seed,
+                   config.max_episode_steps, stagger=config.stagger_first_episodes)
 
 
 def build_run(config: Config) -> Run:
@@ -136,7 +135,11 @@ def _policy_inputs(run: Run, observations: torch.Tensor) -> torch.Tensor:
 
 
 def surrogate_batch(run: Run, batch: Batch) -> tuple[SurrogateBatch, torch.Tensor, torch.Tensor]:
-    """Advantages and the sampling policy's record -> (SurrogateBatch, value targets, inputs)."""
+    """Advantages and the sampling policy's record -> (SurrogateBatch, value targets, V(s_t)).
+
+    The baseline's values are those it predicts now, in the coordinates it was fitted in (the
+    observation normaliser does not change between a fit and the next prediction).
+    """
     config = run.config
     inputs = _policy_inputs(run, batch.observations)
     values = run.baseline.predict(inputs, batch.timesteps)
@@ -157,7 +160,7 @@ def surrogate_batch(run: Run, batch: Batch) -> tuple[SurrogateBatch, torch.Tenso
         advantages = standardize(advantages)
     log_prob, mean, log_std = old_log_prob(run.policy, inputs, batch.actions)
     data = SurrogateBatch(inputs, batch.actions, advantages, log_prob, mean, log_std)
-    return data, targets, inputs
+    return data, targets, values
 
 
 def _nonfinite(named: dict[str, torch.Tensor]) -> list[str]:
@@ -254,7 +257,7 @@ def run_iteration(run: Run) -> dict[str, Any]:
     batch = _sample(run)
     sampled = time.perf_counter()
 
-    data, targets, inputs = surrogate_batch(run, batch)
+    data, targets, values = surrogate_batch(run, batch)
     stats: UpdateStats | None = None
     explained = math.nan
     bad_data = _nonfinite({
@@ -269,9 +272,12 @@ def run_iteration(run: Run) -> dict[str, Any]:
     else:
         before = _learned_state(run)
         stats = update_policy(run.policy, data, config, run.generator, run.probe_generator)
-        explained = run.baseline.fit(inputs, batch.timesteps, targets)  # refit after: rllab order
+        explained = explained_variance(values, targets)  # of the values the advantages used
         if run.normalizer is not None:
             run.normalizer.update(batch.observations)
+        # Refit after the update (rllab order), in the coordinates of the next prediction: the
+        # normaliser's new statistics, which stay fixed until the next fit.
+        run.baseline.fit(_policy_inputs(run, batch.observations), batch.timesteps, targets)
         # update_policy guards its own steps; this catches whatever slips through (and the
         # baseline's and normaliser's updates), undoing the whole update rather than patching it.
         broken = _nonfinite_learned_state(run)

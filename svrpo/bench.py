@@ -336,12 +336,16 @@ def update_breakdown(
         batch = run.sampler.sample(snapshot_of(run), svrpo_config.batch_size)
         sampling_s = time.perf_counter() - tic
         tic = time.perf_counter()
-        data, targets, inputs = surrogate_batch(run, batch)
+        data, targets, _ = surrogate_batch(run, batch)
+        inputs = data.observations
         advantages_s = time.perf_counter() - tic
         start = {k: v.clone() for k, v in run.policy.state_dict().items()}
         generator, probe = run.generator.get_state(), run.probe_generator.get_state()
         results: dict[str, Any] = {}
-        for name, config in (("svrpo", svrpo_config), ("trpo", trpo_config)):
+        # The preset's inner-loop stopping rule, and the authors' "run all J" beside it.
+        variants = (("svrpo", svrpo_config), ("svrpo_all_inner_steps", svrpo_config.replace(inner_stop="all")),
+                    ("trpo", trpo_config))
+        for name, config in variants:
             run.policy.load_state_dict(start)
             run.generator.set_state(generator)
             run.probe_generator.set_state(probe)
@@ -354,9 +358,11 @@ def update_breakdown(
             parts["other"] = total - sum(parts.values())
             results[name] = {
                 "seconds": total, "parts_s": parts, "calls": dict(timers.calls),
-                "inner_steps": config.inner_steps, "accepted": stats.inner_steps_accepted,
+                "inner_steps": stats.inner_steps_attempted, "max_inner_steps": config.inner_steps,
+                "inner_stop": config.inner_stop, "accepted": stats.inner_steps_accepted,
                 "backtracks": stats.backtracks, "minibatch_size": config.minibatch_size,
                 "fisher_subsample": config.fisher_subsample,
+                "surrogate_improvement": stats.surrogate_improvement, "mean_kl": stats.mean_kl,
             }
         tic = time.perf_counter()
         run.baseline.fit(inputs, batch.timesteps, targets)
@@ -377,8 +383,9 @@ def update_breakdown(
         "torch_threads": svrpo_config.torch_threads, "num_workers": svrpo_config.num_workers,
         "sampling_s": sampling_s, "advantages_s": advantages_s,
         "baseline_fit_s": {svrpo_config.baseline: baseline_s, "mlp_default": mlp_s},
-        "svrpo": results["svrpo"], "trpo": results["trpo"],
+        **results,
         "svrpo_update_over_sampling": results["svrpo"]["seconds"] / sampling_s,
+        "svrpo_all_inner_steps_update_over_sampling": results["svrpo_all_inner_steps"]["seconds"] / sampling_s,
         "trpo_update_over_sampling": results["trpo"]["seconds"] / sampling_s,
     }
 

@@ -18,6 +18,7 @@ Estimator = Literal["full", "sgd", "svrg"]
 Metric = Literal["fisher", "identity"]
 Surrogate = Literal["ratio", "loglik"]
 KlAnchor = Literal["sampling", "iterate"]
+InnerStop = Literal["all", "failed_search"]
 BaselineKind = Literal["linear", "mlp"]
 Scale = Literal["paper", "laptop"]
 
@@ -60,6 +61,11 @@ class Config:
     kl_anchor: KlAnchor = "sampling"
     """Policy the trust region is measured from: `sampling` (pi_old, all J steps share one
     delta-ball, the authors' code) or `iterate` (each inner step bounded around w_j)."""
+    inner_stop: InnerStop = "failed_search"
+    """When the inner loop ends (J is the *maximum* number of inner steps, Algorithm 1): `all`
+    runs all J (the authors' code); `failed_search` stops after the first inner step whose line
+    search accepts no trial, i.e. once the trust region is used up (with kl_anchor `sampling`
+    every later step starts from the same point and meets the same delta-ball)."""
     max_kl: float = 0.01
     """delta: bound on the mean KL(anchor || new) accepted by the line search."""
     cg_iters: int = 10
@@ -92,8 +98,14 @@ class Config:
     """Mini-batch size of the `mlp` value-function fit."""
     normalize_observations: bool = False
     """Normalise observations with running mean/std (frozen during an iteration's sampling)."""
-    max_episode_steps: int = 1000
-    """Horizon: episodes are truncated (and bootstrapped) after this many steps."""
+    max_episode_steps: int | None = None
+    """Horizon: episodes are truncated (and bootstrapped) after this many steps. None: the task's
+    registered time limit (1000 on the six paper tasks), or 1000 for a task that registers none."""
+    stagger_first_episodes: bool = True
+    """Cut environment g's first episode after ceil((g + 1) H / E) steps (a truncation: bootstrapped,
+    and left out of average_return), so that the E environments' episodes are spread over the
+    horizon H and every batch covers t in [0, H). False: every environment starts together and
+    tasks that never terminate stay in lockstep (the behaviour of the results before Core v2)."""
 
     # --- policy ---
     hidden_sizes: tuple[int, ...] = (64, 64)
@@ -111,9 +123,10 @@ class Config:
     variance_probe_batches: int = 8
     """Extra mini-batches drawn at one inner step per iteration to measure the variance of the
     svrg and sgd estimates around the full gradient (0 turns the diagnostic off)."""
-    eval_every: int = 10
-    """Deterministic (mean-action) evaluation every this many iterations (0: never)."""
-    eval_episodes: int = 5
+    eval_every: int = 20
+    """Deterministic (mean-action) evaluation every this many iterations and after the last one
+    (0: never)."""
+    eval_episodes: int = 10
     """Episodes per deterministic evaluation."""
     checkpoint_every: int = 10
     """Write a checkpoint every this many iterations (and always at the end)."""
@@ -133,7 +146,13 @@ class Config:
 
     @staticmethod
     def from_dict(values: dict[str, Any]) -> Config:
-        """Build from a JSON-like dict, converting and checking every field."""
+        """Build from a JSON-like dict, converting and checking every field.
+
+        A field missing from the dict takes its default, except the fields added after runs
+        had been written without them (_ADDED_FIELDS): those take the value that reproduces what
+        the older code did, so resuming an old run does not change its algorithm half-way.
+        """
+        values = {**_ADDED_FIELDS, **values}
         converted = {name: coerce_field(name, value) for name, value in values.items()}
         return validate(Config(**converted))
 
@@ -144,6 +163,9 @@ class Config:
 
 
 _HINTS = typing.get_type_hints(Config)
+
+_ADDED_FIELDS: dict[str, Any] = {"inner_stop": "all", "stagger_first_episodes": False}
+"""Fields added in Core v2, with the behaviour of the code before them."""
 
 
 def field_names() -> list[str]:
@@ -159,8 +181,15 @@ def coerce_field(name: str, value: Any) -> Any:
         close = difflib.get_close_matches(name, field_names(), n=3)
         hint = f" (did you mean {', '.join(close)}?)" if close else ""
         raise ConfigError(f"unknown config field '{name}'{hint}")
-    hint = _HINTS[name]
+    return _coerce(name, _HINTS[name], value)
+
+
+def _coerce(name: str, hint: Any, value: Any) -> Any:
     origin = typing.get_origin(hint)
+    if hint == (int | None):  # an optional integer: none/null, or the integer itself
+        if value is None or (isinstance(value, str) and value.lower() in ("none", "null")):
+            return None
+        return _coerce(name, int, value)
     try:
         if origin is Literal:
             choices = typing.get_args(hint)
@@ -222,7 +251,8 @@ def validate(config: Config) -> Config:
         (c.max_backtracks >= 1, "max_backtracks must be >= 1"),
         (0 < c.gamma <= 1, "gamma must be in (0, 1]"),
         (0 <= c.gae_lambda <= 1, "gae_lambda must be in [0, 1]"),
-        (c.max_episode_steps >= 1, "max_episode_steps must be >= 1"),
+        (c.max_episode_steps is None or c.max_episode_steps >= 1,
+         "max_episode_steps must be >= 1 (or none: the task's own time limit)"),
         (len(c.hidden_sizes) >= 1 and all(h >= 1 for h in c.hidden_sizes),
          "hidden_sizes must be positive widths"),
         (all(h >= 1 for h in c.baseline_hidden_sizes), "baseline_hidden_sizes must be positive"),
@@ -284,7 +314,6 @@ def _scale_fields(scale: Scale, env_id: str) -> dict[str, Any]:
             "total_steps": 50_000 * iterations,
             "hidden_sizes": (64, 64, 64) if family in _DEEP_TASKS else (64, 64),
             "gamma": 0.995,
-            "max_episode_steps": 1000,
             "eval_every": 25,
             "checkpoint_every": 5,
         }
@@ -296,7 +325,6 @@ def _scale_fields(scale: Scale, env_id: str) -> dict[str, Any]:
         "total_steps": 1_000_000,
         "hidden_sizes": (64, 64, 64) if family in _DEEP_TASKS else (64, 64),
         "gamma": 0.995,
-        "max_episode_steps": 1000,
     }
 
 

@@ -19,6 +19,10 @@ import numpy as np
 _PHYSICS_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
+DEFAULT_HORIZON = 1000
+"""Time limit of a task that registers none (the paper's horizon): episodes are truncated there."""
+
+
 class EnvError(ValueError):
     """An environment id that does not exist, or spaces this project cannot handle."""
 
@@ -35,16 +39,40 @@ class EnvInfo:
     """(act_dim,) lower bounds of the env's action box."""
     action_high: np.ndarray
     """(act_dim,) upper bounds of the env's action box."""
-    max_episode_steps: int | None
-    """Time limit after which episodes are truncated, or None for no limit."""
+    max_episode_steps: int
+    """Time limit after which episodes are truncated (`horizon`)."""
 
 
 def make_env(env_id: str, max_episode_steps: int | None = None) -> gym.Env:
     """Create a Gymnasium env with continuous 1-D Box observation and action spaces.
 
-    max_episode_steps overrides the registered time limit (None keeps it). Raises EnvError for
-    an unknown id (suggesting close matches) or for spaces the Gaussian policy cannot drive.
+    max_episode_steps overrides the registered time limit; None keeps the task's own, or
+    DEFAULT_HORIZON for a task that registers none (see `horizon`), so every env this project
+    makes has a time limit. Raises EnvError for an unknown id (suggesting close matches) or for
+    spaces the Gaussian policy cannot drive.
     """
+    env_id = registered_id(env_id)
+    env = gym.make(env_id, max_episode_steps=horizon(env_id, max_episode_steps))
+    try:
+        _check_spaces(env_id, env)
+    except EnvError:
+        env.close()
+        raise
+    return env
+
+
+def horizon(env_id: str, max_episode_steps: int | None = None) -> int:
+    """The time limit a run uses: max_episode_steps if given, else the task's registered limit,
+    else DEFAULT_HORIZON (a task with no limit of its own). EnvError for an unknown id."""
+    if max_episode_steps is not None:
+        return max_episode_steps
+    registered = gym.spec(registered_id(env_id)).max_episode_steps
+    return DEFAULT_HORIZON if registered is None else int(registered)
+
+
+def registered_id(env_id: str) -> str:
+    """env_id as Gymnasium's registry knows it, importing the module of a "module:Env" id first;
+    EnvError for an id that does not exist (suggesting close matches)."""
     module, _, name = env_id.rpartition(":")
     if module:
         # Gymnasium's "package.module:EnvName-v0" form: importing the module registers the env
@@ -58,13 +86,7 @@ def make_env(env_id: str, max_episode_steps: int | None = None) -> gym.Env:
         matches = difflib.get_close_matches(env_id, list(gym.registry.keys()), n=3, cutoff=0.6)
         hint = f" Did you mean {', '.join(repr(m) for m in matches)}?" if matches else ""
         raise EnvError(f"Unknown Gymnasium environment id {env_id!r}.{hint}")
-    env = gym.make(env_id, max_episode_steps=max_episode_steps)
-    try:
-        _check_spaces(env_id, env)
-    except EnvError:
-        env.close()
-        raise
-    return env
+    return env_id
 
 
 def _check_spaces(env_id: str, env: gym.Env) -> None:
@@ -93,7 +115,7 @@ def env_info(env_id: str, max_episode_steps: int | None = None) -> EnvInfo:
             act_dim=int(act_space.shape[0]),
             action_low=np.asarray(act_space.low, dtype=np.float64).copy(),
             action_high=np.asarray(act_space.high, dtype=np.float64).copy(),
-            max_episode_steps=None if env.spec is None else env.spec.max_episode_steps,
+            max_episode_steps=horizon(env_id, max_episode_steps),
         )
     finally:
         env.close()

@@ -24,7 +24,7 @@ import numpy as np
 
 from svrpo import checkpoint
 from svrpo.config import Config
-from svrpo.envs import env_info, make_env, scale_action
+from svrpo.envs import env_info, horizon, make_env, registered_id, scale_action
 from svrpo.policy_snapshot import PolicySnapshot
 
 GL_BACKENDS = ("egl", "osmesa")
@@ -211,7 +211,8 @@ def _render_child(argv: list[str]) -> int:
     path, out, episodes, seed, width, height = Path(argv[0]), Path(argv[1]), *map(int, argv[2:])
     policy = load_policy(path)
     config = policy.config
-    env = gym.make(config.env_id, max_episode_steps=config.max_episode_steps, render_mode="rgb_array",
+    limit = horizon(config.env_id, config.max_episode_steps)
+    env = gym.make(registered_id(config.env_id), max_episode_steps=limit, render_mode="rgb_array",
                    width=width, height=height)
     env.reset(seed=seed)
     try:

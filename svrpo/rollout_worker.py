@@ -45,12 +45,26 @@ class WorkerChunk:
     episode_lengths: np.ndarray  # (k,) int64
 
 
+def first_episode_cuts(horizon: int, num_envs: int) -> list[int]:
+    """Length of env g's first episode, g = 0..E-1: ceil((g + 1) H / E), the last one a whole H.
+
+    Cutting the first episodes at lengths spread evenly over (0, H] puts the envs' episodes at
+    phases spread over the horizon, so that every later batch of a task that never terminates
+    (Swimmer, HalfCheetah) covers t in [0, H) instead of one window shared by all envs.
+    """
+    return [-(-(g + 1) * horizon // num_envs) for g in range(num_envs)]
+
+
 class RolloutWorker:
     """E persistent environments stepped in lockstep; episodes carry over between sample() calls.
 
     Env i (global index worker_index * E + i) is seeded with seed + global index at its first
     reset only; later resets draw from the env's own generator. Action noise comes from one
     Generator per worker, seeded by SeedSequence([seed, worker_index]).
+
+    `first_cuts` (one length per env, see first_episode_cuts) truncates each env's first
+    episode early; such a cut is a truncation like the time limit (bootstrapped), but the cut
+    episode is not reported among the completed episodes, whose returns must be comparable.
     """
 
     def __init__(
@@ -60,6 +74,7 @@ class RolloutWorker:
         seed: int,
         worker_index: int = 0,
         max_episode_steps: int | None = None,
+        first_cuts: Sequence[int] | None = None,
     ) -> None:
         self.env_id = env_id
         self.max_episode_steps = max_episode_steps
@@ -74,7 +89,15 @@ class RolloutWorker:
         # The wrappers are bypassed while sampling (VectorStep); the time limit is applied here.
         self._stepper = VectorStep(env_id, self.envs)
         spec = self.envs[0].spec
-        self._time_limit = None if spec is None else spec.max_episode_steps
+        assert spec is not None and spec.max_episode_steps is not None  # make_env sets a limit
+        self._time_limit = int(spec.max_episode_steps)
+        if first_cuts is not None and len(first_cuts) != num_envs:
+            raise ValueError(f"need {num_envs} first-episode lengths, got {len(first_cuts)}")
+        # The step at which each env's current episode is truncated: the time limit, or an
+        # earlier cut while the env is in its first episode.
+        self._limit = np.full(num_envs, self._time_limit, dtype=np.int64)
+        if first_cuts is not None:
+            self._limit = np.minimum(self._limit, np.asarray(first_cuts, dtype=np.int64))
         self._obs = np.stack([self._stepper.reset(i, seed=seed + first + i) for i in range(num_envs)])
         self._timestep = np.zeros(num_envs, dtype=np.int64)
         self._return = np.zeros(num_envs, dtype=np.float64)
@@ -97,7 +120,6 @@ class RolloutWorker:
         truncated = np.zeros((steps, num_envs), dtype=bool)
         timesteps = np.empty((steps, num_envs), dtype=np.int64)
         ended: list[list[tuple[float, int]]] = [[] for _ in self.envs]
-        limit = self._time_limit
         everyone = np.arange(num_envs)
         everyone_list = everyone.tolist()
         for k in range(steps):
@@ -115,16 +137,18 @@ class RolloutWorker:
                 everyone_list if full else active.tolist(), controls
             )
             self._timestep[at] += 1
-            step_truncated = (
-                self._timestep[at] >= limit if limit is not None else np.zeros(len(active), bool)
-            )
+            step_truncated = self._timestep[at] >= self._limit[at]
             rewards[k, at], next_obs[k, at] = step_rewards, observations
             terminated[k, at], truncated[k, at] = step_terminated, step_truncated
             self._return[at] += step_rewards
             self._obs[at] = observations
             for j in np.flatnonzero(step_terminated | step_truncated).tolist():
                 i = int(active[j])
-                ended[i].append((float(self._return[i]), int(self._timestep[i])))
+                cut_short = (bool(step_truncated[j]) and not bool(step_terminated[j])
+                             and self._limit[i] < self._time_limit)
+                if not cut_short:  # a staggering cut is no complete episode
+                    ended[i].append((float(self._return[i]), int(self._timestep[i])))
+                self._limit[i] = self._time_limit
                 self._obs[i] = self._stepper.reset(i)
                 self._return[i], self._timestep[i] = 0.0, 0
         # (env, step) pairs that were taken, env by env and in time order within each env.
@@ -194,6 +218,7 @@ class RolloutWorker:
             "observations": self._obs.copy(),
             "timesteps": self._timestep.copy(),
             "episode_returns": self._return.copy(),
+            "episode_limits": self._limit.copy(),
             "envs": [get_env_state(env) for env in self.envs],
             "positions": self._stepper.get_positions(),
         }
@@ -208,6 +233,9 @@ class RolloutWorker:
         self._obs = np.array(state["observations"], dtype=np.float64)
         self._timestep = np.array(state["timesteps"], dtype=np.int64)
         self._return = np.array(state["episode_returns"], dtype=np.float64)
+        # States written before staggering existed hold no limits: the time limit everywhere.
+        limits = state.get("episode_limits", np.full(len(self.envs), self._time_limit))
+        self._limit = np.array(limits, dtype=np.int64)
         # Restoring physics recomputes derived quantities (body positions) that a step would have
         # left one substep stale; the saved positions keep the next reward bit-exact.
         self._stepper.set_positions(state.get("positions"))
@@ -231,6 +259,7 @@ def worker_main(
     seed: int,
     worker_index: int,
     max_episode_steps: int | None,
+    first_cuts: Sequence[int] | None = None,
 ) -> None:
     """Process entry: build a RolloutWorker, then serve (command, args) requests until 'close'.
 
@@ -243,7 +272,7 @@ def worker_main(
     # Ctrl-C reaches the whole process group; the parent handles it and closes the workers.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
-        worker = RolloutWorker(env_id, num_envs, seed, worker_index, max_episode_steps)
+        worker = RolloutWorker(env_id, num_envs, seed, worker_index, max_episode_steps, first_cuts)
     except Exception:
         conn.send(("error", traceback.format_exc()))
         conn.close()

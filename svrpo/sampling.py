@@ -23,7 +23,13 @@ import torch
 
 from svrpo.envs import env_info
 from svrpo.policy_snapshot import PolicySnapshot
-from svrpo.rollout_worker import THREAD_ENV_VARS, RolloutWorker, WorkerChunk, worker_main
+from svrpo.rollout_worker import (
+    THREAD_ENV_VARS,
+    RolloutWorker,
+    WorkerChunk,
+    first_episode_cuts,
+    worker_main,
+)
 
 _START_TIMEOUT_S = 120.0
 _CLOSE_TIMEOUT_S = 5.0
@@ -83,9 +89,11 @@ def steps_per_env(num_steps: int, num_envs: int) -> list[int]:
 class Sampler:
     """Samples exactly N steps with W worker processes of E envs each (W = 0: in-process).
 
-    Results depend only on (env_id, seed, num_workers, envs_per_worker, max_episode_steps) and
-    the snapshots passed in, never on timing. Environments persist across sample() calls, so
-    episodes continue from one batch into the next.
+    Results depend only on (env_id, seed, num_workers, envs_per_worker, max_episode_steps,
+    stagger) and the snapshots passed in, never on timing. Environments persist across sample()
+    calls, so episodes continue from one batch into the next. With stagger=True the W * E envs'
+    first episodes are cut at lengths spread over the horizon (rollout_worker.first_episode_cuts),
+    so that batches cover the whole episode time axis.
     """
 
     def __init__(
@@ -95,6 +103,7 @@ class Sampler:
         envs_per_worker: int,
         seed: int,
         max_episode_steps: int | None = None,
+        stagger: bool = False,
     ) -> None:
         if num_workers < 0 or envs_per_worker < 1:
             raise ValueError(
@@ -104,13 +113,18 @@ class Sampler:
         self.info = env_info(env_id, max_episode_steps)  # EnvError here, before any process
         self.num_workers = num_workers
         self.envs_per_worker = envs_per_worker
+        cuts = first_episode_cuts(self.info.max_episode_steps, self.num_envs) if stagger else None
+
+        def worker_cuts(index: int) -> list[int] | None:
+            return None if cuts is None else cuts[index * envs_per_worker : (index + 1) * envs_per_worker]
+
         self._broken: str | None = None
         self._local: RolloutWorker | None = None
         self._procs: list[BaseProcess] = []
         self._conns: list[Connection] = []
         self._finalizer: weakref.finalize[..., Any]
         if num_workers == 0:
-            self._local = RolloutWorker(env_id, envs_per_worker, seed, 0, max_episode_steps)
+            self._local = RolloutWorker(env_id, envs_per_worker, seed, 0, max_episode_steps, worker_cuts(0))
             self._finalizer = weakref.finalize(self, self._local.close)
             return
         # Runs on close(), on garbage collection and at interpreter exit: no orphaned workers.
@@ -119,7 +133,8 @@ class Sampler:
         with _single_threaded_children():
             for index in range(num_workers):
                 parent_end, child_end = context.Pipe()
-                args = (child_end, env_id, envs_per_worker, seed, index, max_episode_steps)
+                args = (child_end, env_id, envs_per_worker, seed, index, max_episode_steps,
+                        worker_cuts(index))
                 proc = context.Process(
                     target=worker_main, args=args, name=f"svrpo-sampler-{index}", daemon=True
                 )

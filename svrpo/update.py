@@ -27,7 +27,11 @@ class UpdateStats:
     """What one policy update did; every field becomes a progress.csv column."""
 
     inner_steps_attempted: int
+    """Inner steps run: J, or fewer when the stopping rule ended the loop early."""
     inner_steps_accepted: int
+    stopped_early: int
+    """1 if the stopping rule (inner_stop) ended the loop before J steps: the trust region was
+    used up (a line search accepted no trial); 0 if all J ran."""
     backtracks: int
     """Line-search trials summed over inner steps."""
     skipped_curvature: int
@@ -45,7 +49,8 @@ class UpdateStats:
     cg_iterations: float
     """Mean CG iterations per inner step."""
     svrg_variance: float
-    """Probe: mean ||g_svrg - grad U(w)||^2 at inner step floor(J/2) (nan when off)."""
+    """Probe: mean ||g_svrg - grad U(w)||^2 at the last inner iterate (nan when off, or when no
+    inner step was accepted)."""
     sgd_variance: float
     """Probe: mean ||g_sgd - grad U(w)||^2 on the same mini-batches (nan when off)."""
     variance_ratio: float
@@ -138,18 +143,12 @@ def update_policy(
     expected = 0.0
     cg_residuals: list[float] = []
     cg_iterations: list[int] = []
-    variances = (math.nan, math.nan, math.nan)
-    probe_step = config.inner_steps // 2
+    attempted = stopped_early = 0
 
     for step in range(config.inner_steps):
+        attempted += 1
         indices = _draw(count, minibatch_rows, generator)
         fisher_indices = _draw(count, fisher_rows, generator)
-        if step == probe_step and config.variance_probe_batches > 0 and config.estimator != "full":
-            probes = [_draw(count, minibatch_rows, probe_generator)
-                      for _ in range(config.variance_probe_batches)]
-            diagnostic = estimator_variances(current, snapshot, estimator.snapshot_full_gradient, probes)
-            variances = (diagnostic.svrg_variance, diagnostic.sgd_variance, diagnostic.ratio)
-
         gradient = estimator.estimate(indices)
         if not torch.isfinite(gradient).all():
             skipped_gradient += 1
@@ -192,12 +191,25 @@ def update_policy(
             step_objective = full_batch.last_objective  # the accepted trial was evaluated last
             accepted += 1
             expected += float(gradient.dot(full_step)) * result.step_fraction
+        elif config.inner_stop == "failed_search" and step < config.inner_steps - 1:
+            stopped_early = 1
+            break
+
+    # The probe looks at the last inner iterate: the farthest the loop went from w~, where the
+    # control variate is weakest. With no accepted step that is w~ itself (SVRG's variance is
+    # exactly 0 there), which says nothing, so the probe is left out.
+    variances = (math.nan, math.nan, math.nan)
+    if accepted and config.variance_probe_batches > 0 and config.estimator != "full":
+        probes = [_draw(count, minibatch_rows, probe_generator) for _ in range(config.variance_probe_batches)]
+        diagnostic = estimator_variances(current, snapshot, estimator.snapshot_full_gradient, probes)
+        variances = (diagnostic.svrg_variance, diagnostic.sgd_variance, diagnostic.ratio)
 
     old_log_std = batch.old_log_std.expand_as(batch.old_mean)
     final_kl = full_batch.kl(batch.old_mean, old_log_std)
     return UpdateStats(
-        inner_steps_attempted=config.inner_steps,
+        inner_steps_attempted=attempted,
         inner_steps_accepted=accepted,
+        stopped_early=stopped_early,
         backtracks=backtracks,
         skipped_curvature=skipped_curvature,
         skipped_nonfinite_gradient=skipped_gradient,

@@ -20,6 +20,7 @@ from svrpo.config import (
     make_preset,
     validate,
 )
+from svrpo.envs import horizon
 
 TASKS = ("Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
 # DESIGN.md: per-task (m, J) and iteration count at paper scale.
@@ -85,7 +86,9 @@ def test_paper_scale_per_task_settings(env_id: str) -> None:
         assert config.hidden_sizes == ((64, 64, 64) if deep else (64, 64))
         # Table I / DESIGN.md shared settings.
         assert (config.gamma, config.max_kl, config.cg_iters, config.cg_damping) == (0.995, 0.01, 10, 1e-5)
-        assert (config.max_episode_steps, config.gae_lambda, config.baseline) == (1000, 1.0, "linear")
+        # The horizon is the task's registered limit, which is the paper's 1000 on all six.
+        assert horizon(env_id, config.max_episode_steps) == 1000
+        assert (config.gae_lambda, config.baseline) == (1.0, "linear")
         assert config.normalize_observations is False
         assert config.init_log_std == 0.0
 

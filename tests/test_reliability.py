@@ -298,7 +298,8 @@ def test_resume_of_a_damaged_run_directory_is_one_line(tmp_path: Path,
 
 
 _VALID = json.loads(make_preset("svrpo", "Hopper-v5", "laptop").to_json())
-_FIELD_TYPES = {name: type(value) for name, value in _VALID.items()}
+_FIELD_TYPES: dict[str, type | tuple[type, ...]] = {name: type(value) for name, value in _VALID.items()}
+_FIELD_TYPES["max_episode_steps"] = (int, type(None))  # None: the task's own time limit
 _json_values = st.recursive(
     st.none() | st.booleans() | st.integers(-10**20, 10**20) | st.floats() | st.text(max_size=10),
     lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=4), inner, max_size=2),

@@ -21,6 +21,9 @@ def fisher_vector_product(
 ) -> MatVec:
     """v -> (F + damping I) v, F the Fisher of pi_w on `observations` at the current w.
 
+    The product is bound to the w at which it was built: moving the policy's parameters later
+    does not change it.
+
     F is the Hessian at w' = w of mean_s KL(pi_w(.|s) detached || pi_w'(.|s)), which equals
     E_s E_a[grad log pi grad log pi^T]. For the Gaussian policy it has the closed form
         F = (1/B) sum_s J_s^T diag(1/sigma^2) J_s  (+ 2 I on the log-std block, no cross terms),
@@ -39,7 +42,9 @@ def fisher_vector_product(
     with torch.no_grad():
         slopes = [1.0 - a * a for a in activations[:-1]]  # tanh'(z_k) = 1 - a_{k+1}^2
         precision = torch.exp(-2.0 * policy.log_std) / count  # diag(1/sigma^2), mean over states
-    weights = [layer.weight.detach() for layer in layers]
+    # Copies, not views: the activations above belong to this w, so the product must keep using
+    # this w's weights after the line search moves the live parameters in place.
+    weights = [layer.weight.detach().clone() for layer in layers]
     params = list(policy.parameters())
     sizes = [p.numel() for p in params]
     slots = {id(p): index for index, p in enumerate(params)}  # parameter -> block of the flat vector
