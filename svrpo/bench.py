@@ -343,8 +343,8 @@ def update_breakdown(
         generator, probe = run.generator.get_state(), run.probe_generator.get_state()
         results: dict[str, Any] = {}
         # The preset's inner-loop stopping rule, and the authors' "run all J" beside it.
-        variants = (("svrpo", svrpo_config), ("svrpo_all_inner_steps", svrpo_config.replace(inner_stop="all")),
-                    ("trpo", trpo_config))
+        variants = (("svrpo", svrpo_config),
+                    ("svrpo_all_inner_steps", svrpo_config.replace(inner_stop="all")), ("trpo", trpo_config))
         for name, config in variants:
             run.policy.load_state_dict(start)
             run.generator.set_state(generator)
@@ -385,7 +385,8 @@ def update_breakdown(
         "baseline_fit_s": {svrpo_config.baseline: baseline_s, "mlp_default": mlp_s},
         **results,
         "svrpo_update_over_sampling": results["svrpo"]["seconds"] / sampling_s,
-        "svrpo_all_inner_steps_update_over_sampling": results["svrpo_all_inner_steps"]["seconds"] / sampling_s,
+        "svrpo_all_inner_steps_update_over_sampling":
+            results["svrpo_all_inner_steps"]["seconds"] / sampling_s,
         "trpo_update_over_sampling": results["trpo"]["seconds"] / sampling_s,
     }
 

@@ -20,7 +20,7 @@ Surrogate = Literal["ratio", "loglik"]
 KlAnchor = Literal["sampling", "iterate"]
 InnerStop = Literal["all", "failed_search"]
 BaselineKind = Literal["linear", "mlp"]
-Scale = Literal["paper", "laptop"]
+Scale = Literal["paper", "laptop", "modern"]
 
 
 class ConfigError(ValueError):
@@ -288,7 +288,7 @@ PAPER_INNER: dict[str, tuple[int, int, int]] = {
 _DEEP_TASKS = ("Ant", "Humanoid")
 
 PRESET_NAMES = ("trpo", "svrpo", "svrpo-loglik", "svrpo-sgd", "svrpo-identity")
-SCALES: tuple[Scale, ...] = ("paper", "laptop")
+SCALES: tuple[Scale, ...] = ("paper", "laptop", "modern")
 
 # The ablation field of each preset relative to `svrpo`.
 _ABLATIONS: dict[str, dict[str, Any]] = {
@@ -305,6 +305,8 @@ def _task_family(env_id: str) -> str:
 
 def _scale_fields(scale: Scale, env_id: str) -> dict[str, Any]:
     family = _task_family(env_id)
+    if scale == "modern":
+        return dict(MODERN_FIELDS)
     if scale == "paper":
         m, j, iterations = PAPER_INNER.get(family, (5000, 20, 1000))
         return {
@@ -328,6 +330,21 @@ def _scale_fields(scale: Scale, env_id: str) -> dict[str, Any]:
     }
 
 
+# The modern scale: sb3-contrib's TRPO defaults (v2.x) in this library's fields, for every preset.
+MODERN_FIELDS: dict[str, Any] = {
+    "batch_size": 2048, "total_steps": 489 * 2048, "gamma": 0.99, "gae_lambda": 0.95,  # 489 x N: just over 1M
+    "baseline": "mlp", "baseline_hidden_sizes": (64, 64), "baseline_lr": 1e-3, "baseline_epochs": 10,
+    "baseline_minibatch_size": 128, "normalize_observations": True, "normalize_advantages": True,
+    "cg_iters": 15, "cg_damping": 0.1, "max_kl": 0.01, "hidden_sizes": (64, 64), "eval_every": 50,
+}
+MODERN_BACKTRACKING = {"backtrack_ratio": 0.8, "max_backtracks": 10}
+"""sb3-contrib's line search (0.8 x 10), for TRPO and every SVRPO preset alike at this scale."""
+MODERN_INNER = {"minibatch_size": 512, "inner_steps": 8, "fisher_subsample": 1.0}
+"""SVRPO's m, J, nu at the modern scale, by one rule fixed before any run: m = N / 4 and
+J = 8, so that m J = 2N (the laptop scale's rule), and nu = 1 (sb3-contrib's unsampled Fisher,
+as TRPO's here): the SVRPO presets differ from TRPO only in the estimator and the inner loop."""
+
+
 def make_preset(name: str, env_id: str = "Hopper-v5", scale: Scale = "laptop") -> Config:
     """The named preset for a task and scale, before any command-line overrides."""
     if name not in PRESET_NAMES:
@@ -339,7 +356,14 @@ def make_preset(name: str, env_id: str = "Hopper-v5", scale: Scale = "laptop") -
     if scale not in SCALES:
         raise ConfigError(f"unknown scale '{scale}'; choose from {', '.join(SCALES)}")
     fields: dict[str, Any] = {"env_id": env_id, **_scale_fields(scale, env_id)}
-    if name == "trpo":
+    if scale == "modern":
+        fields.update(MODERN_BACKTRACKING)
+        if name == "trpo":
+            fields.update(estimator="full", inner_steps=1, fisher_subsample=1.0)
+        else:
+            fields.update(estimator="svrg", **MODERN_INNER)
+            fields.update(_ABLATIONS[name])
+    elif name == "trpo":
         # rllab TRPO: full-batch gradient, unsampled Fisher, backtracking 0.8 x 15.
         fields.update(
             estimator="full",

@@ -268,3 +268,40 @@ def test_random_invalid_fisher_subsample_raises(nu: float) -> None:
 def test_rejects_non_finite_and_fractional_values(field: str, value: object) -> None:
     with pytest.raises(ConfigError):
         Config.from_dict({field: value})
+
+
+def test_config_json_written_before_core_v2_keeps_its_algorithm() -> None:
+    """A run directory written before inner_stop and stagger_first_episodes existed resumes
+    with the behaviour it started with (all J inner steps, lockstep envs), not the new defaults."""
+    old = json.loads(make_preset("svrpo", "Hopper-v5", "laptop").to_json())
+    for added in ("inner_stop", "stagger_first_episodes"):
+        old.pop(added)
+    config = Config.from_dict(old)
+    assert (config.inner_stop, config.stagger_first_episodes) == ("all", False)
+    new = make_preset("svrpo", "Hopper-v5", "laptop")
+    assert Config.from_json(new.to_json()) == new  # present fields are kept as written
+
+
+@pytest.mark.parametrize("value", [None, "none", "null"])
+def test_max_episode_steps_none_means_the_tasks_own_limit(value: object) -> None:
+    assert coerce_field("max_episode_steps", value) is None
+    assert coerce_field("max_episode_steps", "100") == 100
+    with pytest.raises(ConfigError, match="max_episode_steps"):
+        make_preset("trpo").replace(max_episode_steps=0)
+
+
+def test_modern_scale_is_sb3_contribs_trpo_and_svrpo_differs_only_in_its_inner_loop() -> None:
+    """`trpo` at the modern scale is sb3-contrib's TRPO defaults as benchmarks/vs_sb3.py
+    expresses them; every SVRPO preset adds only the estimator and the written (m, J) rule."""
+    trpo = make_preset("trpo", "Walker2d-v5", "modern")
+    expected = {"batch_size": 2048, "gamma": 0.99, "gae_lambda": 0.95, "baseline": "mlp",
+                "baseline_epochs": 10, "baseline_minibatch_size": 128, "normalize_observations": True,
+                "cg_iters": 15, "cg_damping": 0.1, "backtrack_ratio": 0.8, "max_backtracks": 10,
+                "max_kl": 0.01, "fisher_subsample": 1.0, "hidden_sizes": (64, 64), "estimator": "full"}
+    assert {name: getattr(trpo, name) for name in expected} == expected
+    assert trpo.total_steps >= 1_000_000 and trpo.total_steps % trpo.batch_size == 0
+    svrpo = make_preset("svrpo", "Walker2d-v5", "modern")
+    assert differing_fields(trpo, svrpo) == {
+        "estimator": ("full", "svrg"), "minibatch_size": (1000, 512), "inner_steps": (1, 8)}
+    assert svrpo.minibatch_size * svrpo.inner_steps == 2 * svrpo.batch_size
+    assert make_preset("svrpo", "Ant-v5", "modern").hidden_sizes == (64, 64)  # sb3's, every task

@@ -8,7 +8,16 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from svrpo.envs import EnvError, env_info, get_env_state, make_env, scale_action, set_env_state
+from svrpo.envs import (
+    DEFAULT_HORIZON,
+    EnvError,
+    env_info,
+    get_env_state,
+    horizon,
+    make_env,
+    scale_action,
+    set_env_state,
+)
 
 
 class _SpacesEnv(gym.Env):
@@ -32,6 +41,9 @@ def _image_observation_env(**kwargs: Any) -> gym.Env:
 
 gym.register("SvrpoTestDictObs-v0", entry_point=_dict_observation_env)
 gym.register("SvrpoTestImageObs-v0", entry_point=_image_observation_env)
+# A MuJoCo task registered with no time limit of its own.
+gym.register("SvrpoTestNoLimitSwimmer-v0", entry_point="gymnasium.envs.mujoco.swimmer_v5:SwimmerEnv",
+             max_episode_steps=None)
 
 
 def test_unknown_id_suggests_close_match() -> None:
@@ -67,6 +79,31 @@ def test_env_info_hopper() -> None:
     np.testing.assert_array_equal(info.action_low, -np.ones(3))
     np.testing.assert_array_equal(info.action_high, np.ones(3))
     assert env_info("Hopper-v5", max_episode_steps=20).max_episode_steps == 20
+
+
+@pytest.mark.parametrize(("env_id", "expected"), [("Pusher-v5", 100), ("Hopper-v5", 1000),
+                                                  ("SvrpoTestNoLimitSwimmer-v0", DEFAULT_HORIZON)])
+def test_horizon_is_the_tasks_own_limit_unless_overridden(env_id: str, expected: int) -> None:
+    """A task keeps its registered time limit (Pusher: 100); one that registers none gets the
+    documented DEFAULT_HORIZON; an explicit max_episode_steps wins."""
+    assert horizon(env_id) == expected
+    assert env_info(env_id).max_episode_steps == expected
+    env = make_env(env_id)
+    assert env.spec is not None and env.spec.max_episode_steps == expected  # the TimeLimit applied
+    env.close()
+    assert horizon(env_id, 7) == 7 and env_info(env_id, 7).max_episode_steps == 7
+
+
+def test_task_without_a_limit_is_truncated_at_the_default_horizon() -> None:
+    env = make_env("SvrpoTestNoLimitSwimmer-v0", max_episode_steps=None)
+    env.reset(seed=0)
+    steps, truncated = 0, False
+    while not truncated:  # Swimmer never terminates: only the time limit ends an episode
+        _, _, terminated, truncated, _ = env.step(np.zeros(2))
+        assert not terminated
+        steps += 1
+    env.close()
+    assert steps == DEFAULT_HORIZON
 
 
 def test_make_env_applies_time_limit() -> None:

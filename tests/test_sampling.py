@@ -17,6 +17,7 @@ import torch
 
 from svrpo.policy import GaussianMlpPolicy
 from svrpo.policy_snapshot import PolicySnapshot
+from svrpo.rollout_worker import first_episode_cuts
 from svrpo.sampling import Batch, Sampler, steps_per_env
 
 
@@ -240,3 +241,56 @@ def test_worker_module_does_not_import_torch() -> None:
     code = "import sys, svrpo.rollout_worker; assert 'torch' not in sys.modules, 'torch imported'"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=60)
+
+
+# --- time coverage of batches (staggered first episodes) -----------------------------------
+
+SWIMMER = _snapshot(8, 2)
+
+
+def test_first_episode_cuts_spread_over_the_horizon() -> None:
+    cuts = first_episode_cuts(1000, 16)
+    assert cuts[0] == 63 and cuts[-1] == 1000  # ceil(1000 / 16), and the last env a whole episode
+    assert all(b - a in (62, 63) for a, b in zip(cuts, cuts[1:], strict=False))  # evenly spaced
+    assert first_episode_cuts(3, 5) == [1, 2, 2, 3, 3]  # never 0 steps, even with E > H
+
+
+def _timestep_histogram(batch: Batch, horizon: int = 1000, bins: int = 10) -> np.ndarray:
+    return np.histogram(batch.timesteps.numpy(), bins=bins, range=(0, horizon))[0]
+
+
+def test_laptop_swimmer_batches_cover_the_horizon_uniformly() -> None:
+    """Swimmer never terminates: with every env starting together, each 5,000-step batch of 16
+    envs (313 steps each) is one window of the 1,000-step episodes. Staggered first episodes
+    spread the envs' phases, so once every env has had time to reach the end of an episode
+    (ceil(H / (N / E)) = 4 batches) every batch holds each tenth of [0, H) about equally often."""
+    histograms = {}
+    for stagger in (True, False):
+        with Sampler("Swimmer-v5", 0, 16, seed=0, stagger=stagger) as sampler:
+            batches = [sampler.sample(SWIMMER, 5000) for _ in range(6)]
+        histograms[stagger] = [_timestep_histogram(batch) for batch in batches[3:]]
+        if stagger:
+            # Complete episodes only: the cut first episodes are not reported (Swimmer's are
+            # all 1,000 steps), and episodes end in every batch once the phases are spread.
+            lengths = np.concatenate([batch.episode_lengths for batch in batches])
+            assert lengths.size and (lengths == 1000).all()
+            assert all(batch.episode_returns.size >= 3 for batch in batches[3:])
+            # The cut is a truncation (bootstrapped), not a termination.
+            assert not any(bool(batch.terminated.any()) for batch in batches)
+    for histogram in histograms[True]:
+        assert histogram.min() >= 0.8 * 500 and histogram.max() <= 1.2 * 500, histogram
+    # The lockstep layout leaves most of the horizon out of every batch.
+    assert all((histogram == 0).sum() >= 5 for histogram in histograms[False])
+
+
+def test_staggered_sampler_resumes_bit_exactly_during_the_first_episodes() -> None:
+    """The per-env cut is sampler state: saved before any env reached its cut, it must hold."""
+    with Sampler("Swimmer-v5", 0, 4, seed=3, stagger=True) as sampler:
+        sampler.sample(SWIMMER, 200)  # 50 steps per env; the first cut is at 250
+        state = sampler.get_state()
+        expected = [sampler.sample(SWIMMER, 800) for _ in range(3)]
+    with Sampler("Swimmer-v5", 0, 4, seed=3, stagger=True) as restored:
+        restored.set_state(state)
+        for batch in expected:
+            _assert_equal_batches(restored.sample(SWIMMER, 800), batch)
+    assert int(expected[0].truncated.sum()) >= 1  # the cuts happened after the saved state

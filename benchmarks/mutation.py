@@ -1,0 +1,261 @@
+"""Mutation check of the math and data-pipeline modules: do the tests fail when the code is wrong?
+
+Each mutant is one small semantic change (a wrong index set, a flipped condition, a dropped
+term) applied to a fresh copy of the package; the tests of the math and pipeline modules run
+against that copy (`pytest -x`: the first failing test kills the mutant). A mutant no test
+kills "survives" and is listed in the report with the reason it is accepted (equivalent to the
+original, or a deliberate blind spot). Not part of CI: one mutant takes ~10 s to ~3 min.
+
+    python benchmarks/mutation.py                  # every mutant -> benchmarks/results/mutation.json
+    python benchmarks/mutation.py --only fisher    # mutants whose name contains "fisher"
+
+The copy holds the package and the tests only; PYTHONPATH points the tests (and the sampling
+worker processes they spawn) at it, so the checkout itself is never modified.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+
+TESTS = [
+    "tests/test_update_reference.py", "tests/test_batch_wiring.py", "tests/test_estimators.py",
+    "tests/test_metrics.py", "tests/test_conjugate_gradient.py", "tests/test_line_search.py",
+    "tests/test_advantages.py", "tests/test_baselines.py", "tests/test_sampling.py",
+    "tests/test_training.py", "tests/test_config.py", "tests/test_envs.py", "tests/test_fast_paths.py",
+    "tests/test_vector_step.py",
+]
+"""The math and pipeline tests (the whole suite minus CLI, sweeps, Ray, plotting and fault tests)."""
+
+
+@dataclass(frozen=True)
+class Mutant:
+    name: str
+    path: str
+    """File relative to the repository root."""
+    original: str
+    """Text that must occur exactly once in the file."""
+    replacement: str
+    what: str
+    """The mistake the mutant models."""
+
+
+MUTANTS = [
+    # --- update.py: the inner loop's wiring -------------------------------------------------
+    Mutant("fisher-one-subset-per-iteration", "svrpo/update.py",
+           "fisher_indices = _draw(count, fisher_rows, generator)",
+           "fisher_indices = _draw(count, fisher_rows, torch.Generator().manual_seed(0))",
+           "the Fisher subset is the same at every inner step instead of a fresh nu*N draw"),
+    Mutant("fisher-on-minibatch-rows", "svrpo/update.py",
+           "policy, batch.observations[fisher_indices], config.cg_damping",
+           "policy, batch.observations[indices], config.cg_damping",
+           "the Fisher product on the gradient's mini-batch rows instead of its own subset"),
+    Mutant("fisher-at-snapshot", "svrpo/update.py",
+           "policy, batch.observations[fisher_indices], config.cg_damping",
+           "snapshot_policy, batch.observations[fisher_indices], config.cg_damping",
+           "the Fisher of the snapshot w~ instead of the current iterate w_j"),
+    Mutant("kl-anchor-swapped", "svrpo/update.py",
+           'if config.kl_anchor == "sampling":', 'if config.kl_anchor != "sampling":',
+           "the trust region measured from the wrong policy"),
+    Mutant("start-objective-not-advanced", "svrpo/update.py",
+           "step_objective = full_batch.last_objective  # the accepted trial was evaluated last",
+           "pass",
+           "the line search compares against U(w~) instead of U(w_j) after an accepted step"),
+    Mutant("inner-stop-ignored", "svrpo/update.py",
+           'elif config.inner_stop == "failed_search" and step < config.inner_steps - 1:',
+           'elif config.inner_stop == "never" and step < config.inner_steps - 1:',
+           "the loop never stops early"),
+    Mutant("inner-stop-on-any-step", "svrpo/update.py",
+           "if result.accepted:\n            step_objective",
+           "if result.accepted and step == 0:\n            step_objective",
+           "only the first step's acceptance is recorded"),
+    Mutant("minibatch-size-ignored", "svrpo/update.py",
+           'minibatch_rows = count if config.estimator == "full" else config.minibatch_size',
+           "minibatch_rows = count",
+           "mini-batches are the whole batch"),
+    Mutant("probe-uses-training-generator", "svrpo/update.py",
+           "probes = [_draw(count, minibatch_rows, probe_generator)",
+           "probes = [_draw(count, minibatch_rows, generator)",
+           "the variance probe draws from the training generator (the probe changes training)"),
+    # --- estimators.py -----------------------------------------------------------------------
+    Mutant("svrg-is-sgd", "svrpo/estimators.py",
+           "return snapshot_full_gradient + (minibatch_gradient - minibatch_snapshot_gradient)",
+           "return minibatch_gradient",
+           "SVRG without its control variate"),
+    Mutant("svrg-sign", "svrpo/estimators.py",
+           "return snapshot_full_gradient + (minibatch_gradient - minibatch_snapshot_gradient)",
+           "return snapshot_full_gradient - (minibatch_gradient - minibatch_snapshot_gradient)",
+           "the control variate with the wrong sign"),
+    Mutant("sgd-is-full", "svrpo/estimators.py",
+           'if self.kind == "sgd":\n            return self.current(indices)',
+           'if self.kind == "sgd":\n            return self.current(None)',
+           "SGD on the full batch"),
+    # --- trust_region ------------------------------------------------------------------------
+    Mutant("step-length-without-2", "svrpo/trust_region/metrics.py",
+           "return (2.0 * max_kl / curvature) ** 0.5", "return (max_kl / curvature) ** 0.5",
+           "beta = sqrt(delta / s^T F s)"),
+    Mutant("fisher-log-std-block", "svrpo/trust_region/metrics.py",
+           "blocks[log_std_slot] = 2.0 * pieces[log_std_slot]",
+           "blocks[log_std_slot] = 1.0 * pieces[log_std_slot]",
+           "the log-std block of the Fisher is I instead of 2I"),
+    Mutant("fisher-precision", "svrpo/trust_region/metrics.py",
+           "precision = torch.exp(-2.0 * policy.log_std) / count",
+           "precision = torch.exp(-1.0 * policy.log_std) / count",
+           "1/sigma instead of 1/sigma^2"),
+    Mutant("fisher-no-damping", "svrpo/trust_region/metrics.py",
+           "return torch.cat(blocks) + damping * vector", "return torch.cat(blocks)",
+           "damping dropped from the closed-form product"),
+    Mutant("fisher-live-weights", "svrpo/trust_region/metrics.py",
+           "weights = [layer.weight.detach().clone() for layer in layers]",
+           "weights = [layer.weight.detach() for layer in layers]",
+           "the product reads the live weights after the parameters moved"),
+    Mutant("identity-is-fisher", "svrpo/trust_region/metrics.py",
+           'if metric == "identity":\n        return gradient.clone(), None',
+           'if metric == "identity":\n        return conjugate_gradient(fisher_product, gradient, cg_iters, '
+           'residual_tol).solution, None',
+           "the identity ablation still preconditions"),
+    Mutant("cg-beta", "svrpo/trust_region/conjugate_gradient.py",
+           "p = r + (new_r_dot_r / r_dot_r) * p", "p = r + (r_dot_r / new_r_dot_r) * p",
+           "the CG direction update inverted"),
+    Mutant("cg-residual", "svrpo/trust_region/conjugate_gradient.py",
+           "r = r - alpha * fp", "r = r - fp", "the CG residual update drops alpha"),
+    Mutant("line-search-no-improvement-check", "svrpo/trust_region/line_search.py",
+           "improvement > 0 and kl <= max_kl", "kl <= max_kl",
+           "a trial is accepted without improving the surrogate"),
+    Mutant("line-search-kl-slack", "svrpo/trust_region/line_search.py",
+           "improvement > 0 and kl <= max_kl", "improvement > 0 and kl <= 1.5 * max_kl",
+           "a trial above delta is accepted"),
+    Mutant("line-search-no-restore", "svrpo/trust_region/line_search.py",
+           "    set_parameters(start)\n    return LineSearchResult(False",
+           "    return LineSearchResult(False",
+           "a failed search leaves the last trial's parameters"),
+    # --- objectives.py -----------------------------------------------------------------------
+    Mutant("ratio-inverted", "svrpo/objectives.py",
+           "return torch.exp(log_prob - old_log_prob) * advantages",
+           "return torch.exp(old_log_prob - log_prob) * advantages",
+           "the importance ratio upside down"),
+    # --- advantages.py -----------------------------------------------------------------------
+    Mutant("gae-no-lambda", "svrpo/advantages.py",
+           "carry_on = (1.0 - episode_end.double()) * (gamma * lam)",
+           "carry_on = (1.0 - episode_end.double()) * gamma",
+           "GAE ignores lambda"),
+    Mutant("gae-crosses-episodes", "svrpo/advantages.py",
+           "carry_on = (1.0 - episode_end.double()) * (gamma * lam)",
+           "carry_on = (1.0 - terminated.double()) * (gamma * lam)",
+           "advantages flow across truncations and batch cuts"),
+    Mutant("standardize-var", "svrpo/advantages.py",
+           "return (values - values.mean()) / (values.std(unbiased=False) + eps)",
+           "return (values - values.mean()) / (values.var(unbiased=False) + eps)",
+           "divided by the variance"),
+    # --- algorithm.py: batch preparation -------------------------------------------------------
+    Mutant("batch-cut-is-termination", "svrpo/algorithm.py",
+           "batch.rewards, values, next_values, batch.terminated, episode_end,",
+           "batch.rewards, values, next_values, batch.terminated | batch.segment_end, episode_end,",
+           "the batch cut treated as a termination"),
+    Mutant("truncation-is-termination", "svrpo/algorithm.py",
+           "batch.rewards, values, next_values, batch.terminated, episode_end,",
+           "batch.rewards, values, next_values, batch.terminated | batch.truncated, episode_end,",
+           "the time-limit truncation treated as a termination"),
+    Mutant("bootstrap-timestep-t", "svrpo/algorithm.py",
+           "next_values[rows] = run.baseline.predict(next_inputs, batch.timesteps[rows] + 1)",
+           "next_values[rows] = run.baseline.predict(next_inputs, batch.timesteps[rows])",
+           "the bootstrap value read at timestep t instead of t+1"),
+    Mutant("bootstrap-from-next-row", "svrpo/algorithm.py",
+           "    if bootstrap.any():\n", "    if False:\n",
+           "at a truncation or cut V(s_{t+1}) is the next row's value (another episode)"),
+    Mutant("no-advantage-standardisation", "svrpo/algorithm.py",
+           "    if config.normalize_advantages:\n        advantages = standardize(advantages)",
+           "    if False:\n        advantages = standardize(advantages)",
+           "advantages not standardised"),
+    Mutant("targets-from-standardised-advantages", "svrpo/algorithm.py",
+           "    targets = advantages + values\n    if config.normalize_advantages:\n"
+           "        advantages = standardize(advantages)\n",
+           "    if config.normalize_advantages:\n        advantages = standardize(advantages)\n"
+           "    targets = advantages + values\n",
+           "value targets built from standardised advantages"),
+    Mutant("baseline-fit-before-normaliser-update", "svrpo/algorithm.py",
+           "run.baseline.fit(_policy_inputs(run, batch.observations), batch.timesteps, targets)",
+           "run.baseline.fit(data.observations, batch.timesteps, targets)",
+           "the baseline fitted in the old normaliser's coordinates"),
+    # --- sampling: time coverage and episode bookkeeping ------------------------------------
+    Mutant("stagger-cut-counted", "svrpo/rollout_worker.py",
+           "if not cut_short:  # a staggering cut is no complete episode", "if True:",
+           "a staggering cut reported as a complete episode"),
+    Mutant("stagger-cut-every-episode", "svrpo/rollout_worker.py",
+           "                self._limit[i] = self._time_limit\n", "",
+           "every episode is cut at the first-episode length"),
+    Mutant("segment-end-on-truncation", "svrpo/rollout_worker.py",
+           "segment_end[last] = ~(terminated[last] | truncated[last])", "segment_end[last] = True",
+           "a chunk's last step is a batch cut even when its episode ended there"),
+    # --- baselines.py ------------------------------------------------------------------------
+    Mutant("linear-features-time-scale", "svrpo/baselines.py",
+           "t = timesteps.double().unsqueeze(-1) / 100.0", "t = timesteps.double().unsqueeze(-1) / 10.0",
+           "rllab's time features scaled differently"),
+]
+
+
+def run_mutant(mutant: Mutant, workdir: Path, timeout: float) -> dict[str, Any]:
+    """Copy the package and tests, apply the mutant, run the tests; 'killed' if any fails."""
+    copy = workdir / mutant.name
+    shutil.copytree(ROOT / "svrpo", copy / "svrpo", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "tests", copy / "tests", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", copy / "pyproject.toml")
+    target = copy / mutant.path
+    text = target.read_text()
+    if text.count(mutant.original) != 1:
+        return {"status": "not-applied", "reason": f"original text found {text.count(mutant.original)} times"}
+    target.write_text(text.replace(mutant.original, mutant.replacement))
+    env = {**os.environ, "PYTHONPATH": str(copy)}
+    command = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *TESTS]
+    started = time.perf_counter()
+    try:
+        done = subprocess.run(command, cwd=copy, env=env, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"status": "timeout", "seconds": timeout}
+    seconds = time.perf_counter() - started
+    failed = [line for line in done.stdout.splitlines() if line.startswith(("FAILED", "ERROR"))]
+    status = "killed" if done.returncode != 0 else "survived"
+    return {"status": status, "seconds": round(seconds, 1), "killed_by": failed[:3],
+            "summary": done.stdout.strip().splitlines()[-1] if done.stdout.strip() else ""}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", default="", help="run the mutants whose name contains this")
+    parser.add_argument("--timeout", type=float, default=900.0)
+    parser.add_argument("--out", type=Path, default=RESULTS / "mutation.json")
+    args = parser.parse_args()
+    selected = [m for m in MUTANTS if args.only in m.name]
+    results: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory(prefix="svrpo-mutants-") as tmp:
+        for mutant in selected:
+            outcome = run_mutant(mutant, Path(tmp), args.timeout)
+            results[mutant.name] = {"file": mutant.path, "what": mutant.what, **outcome}
+            print(f"{outcome['status']:>11}  {mutant.name}  ({outcome.get('seconds', '-')} s) "
+                  f"{' '.join(outcome.get('killed_by', []))[:120]}", flush=True)
+    survivors = [name for name, r in results.items() if r["status"] != "killed"]
+    report = {
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+        "tests": TESTS, "mutants": len(results),
+        "killed": len(results) - len(survivors), "not_killed": survivors, "results": results,
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"{report['killed']} of {len(results)} killed; not killed: {', '.join(survivors) or 'none'}")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
