@@ -35,6 +35,7 @@ from svrpo.normalization import RunningMeanStd
 from svrpo.objectives import SurrogateBatch, old_log_prob
 from svrpo.policy import GaussianMlpPolicy
 from svrpo.policy_snapshot import PolicySnapshot
+from svrpo.run_lock import exclusive_writer, record_holder
 from svrpo.sampling import Batch, Sampler, WorkerDiedError
 from svrpo.update import UpdateStats, update_policy
 
@@ -424,7 +425,12 @@ def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bo
     two runs never mix. Whatever stops the loop (Ctrl-C, dying workers, a bug), the last
     completed iteration is checkpointed before the exception leaves.
     """
-    run_dir.mkdir(parents=True, exist_ok=True)
+    with exclusive_writer(run_dir):  # one writer per run (re-entrant: the CLI may hold it already)
+        return _train(config, run_dir, resume, show_progress)
+
+
+def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool) -> Run:
+    """train() once this process holds the run directory's writer lock."""
     checkpoints = run_dir / "checkpoints"
     if not resume:
         for stale in checkpoint.list_checkpoints(checkpoints):
@@ -446,6 +452,7 @@ def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bo
         logger = RunLogger(run_dir, config.iterations * config.batch_size, run.env_steps, show_progress)
         for note in notes:
             logger.message(note)
+        record_holder(run_dir)  # from here on this process writes the run
         last_state = capture_state(run)
         saved_iteration = run.iteration if resume else -1
         try:

@@ -6,12 +6,13 @@ Bad input: one line on stderr, exit code 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
-import shutil
 import signal
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -21,6 +22,8 @@ from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field
 from svrpo.envs import EnvError, env_info
 from svrpo.evaluation import EvaluationError
 from svrpo.experiments.specs import SpecError
+from svrpo.run_files import clear_run, holds_anything, is_run_directory
+from svrpo.run_lock import LockedError, exclusive_writer, record_holder
 
 if TYPE_CHECKING:
     from svrpo.experiments.backends import Backend
@@ -49,18 +52,60 @@ def _parse_overrides(extra: list[str]) -> dict[str, str]:
     return overrides
 
 
+_TRAIN_DEFAULTS = {"preset": "svrpo", "env": "Hopper-v5", "scale": "laptop", "seed": 0}
+"""`svrpo train`'s defaults, applied after the check that --resume is not given them too."""
+# A flag of `svrpo train` and the config field it sets: giving both is ambiguous.
+_FLAG_FIELDS = {"env": "env_id", "steps": "total_steps", "seed": "seed"}
+
+
 def _build_config(args: argparse.Namespace, extra: list[str]) -> Config:
-    config = make_preset(args.preset, args.env, args.scale)
+    overrides = _parse_overrides(extra)
+    both = [f"--{flag} and --{name}" for flag, name in _FLAG_FIELDS.items()
+            if getattr(args, flag) is not None and name in overrides]
+    if both:
+        raise UsageError(f"{'; '.join(both)} set the same field: give one of them")
+    for name, value in _TRAIN_DEFAULTS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
+    config = make_preset(args.preset, overrides.pop("env_id", args.env), args.scale)
     changes: dict[str, Any] = {"seed": args.seed}
     if args.steps is not None:
         changes["total_steps"] = args.steps
-    for name, value in _parse_overrides(extra).items():
+    for name, value in overrides.items():
         changes[name] = coerce_field(name, value)
     return config.replace(**changes)
 
 
 def _default_out(config: Config, preset: str) -> Path:
     return Path("runs") / config.env_id / preset / f"seed{config.seed}"
+
+
+def _check_new_out(run_dir: Path) -> None:
+    """--out must be a directory or a path that can become one (not a file, not a symlink)."""
+    if run_dir.is_symlink() or (run_dir.exists() and not run_dir.is_dir()):
+        kind = "a symbolic link" if run_dir.is_symlink() else "not a directory"
+        raise UsageError(f"--out {run_dir} is {kind}; give a new or empty directory (nothing was written)")
+    if holds_anything(run_dir) and not is_run_directory(run_dir):
+        raise UsageError(f"--out {run_dir} holds files but no svrpo run (no config.json); choose a new or "
+                         "empty directory (--overwrite only replaces runs); nothing was touched")
+
+
+def _make_room(run_dir: Path, overwrite: bool) -> None:
+    """Check that a new run may be written to run_dir; with overwrite, clear the run there.
+
+    Only a directory that is a run (config.json) is cleared, and only of the files a run writes
+    (svrpo.run_files): a user's own directory or files are never deleted.
+    """
+    if not holds_anything(run_dir):
+        return
+    _check_new_out(run_dir)  # again, now that this process holds the lock
+    if not overwrite:
+        raise UsageError(f"{run_dir} already holds a run: use --resume {run_dir} to continue it "
+                         "or --overwrite to replace it")
+    kept = clear_run(run_dir)
+    if kept:
+        print(f"note: --overwrite kept {len(kept)} entries of {run_dir} that a run does not write "
+              f"({', '.join(kept[:3])}{', ...' if len(kept) > 3 else ''})", file=sys.stderr)
 
 
 def _train(args: argparse.Namespace, extra: list[str]) -> int:
@@ -75,8 +120,19 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
             raise
         except (OSError, ValueError, TypeError) as error:  # e.g. a config.json cut short by a crash
             raise UsageError(f"--resume: cannot read {config_path}: {error}") from None
-        if extra:
-            raise UsageError("--resume continues a run with its saved config.json; drop the overrides")
+        given = [f"--{name}" for name in ("preset", "env", "scale", "seed", "out")
+                 if getattr(args, name) is not None] + (["--overwrite"] if args.overwrite else [])
+        given += [token.split("=")[0] for token in extra if token.startswith("--")]
+        if given:
+            raise UsageError(f"--resume continues {run_dir} with its saved config.json: drop "
+                             f"{', '.join(given)} (only --steps N may be given, to extend the run)")
+        if args.steps is not None and args.steps != config.total_steps:
+            if args.steps < config.total_steps:
+                raise UsageError(f"--steps {args.steps} is fewer than the run's total_steps "
+                                 f"({config.total_steps}); --resume can only extend a run")
+            print(f"note: extending the run from {config.total_steps} to {args.steps} steps",
+                  file=sys.stderr)
+            config = config.replace(total_steps=args.steps)
         try:
             preset = json.loads((run_dir / "run.json").read_text()).get("preset", "custom")
         except (OSError, ValueError, AttributeError):
@@ -89,13 +145,23 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
     if config.total_steps % config.batch_size:
         print(f"note: total_steps is not a multiple of batch_size; running {config.iterations} "
               f"iterations = {config.iterations * config.batch_size} steps", file=sys.stderr)
-    if args.resume is None and run_dir.exists() and any(run_dir.iterdir()):
-        if not args.overwrite:
-            raise UsageError(f"{run_dir} already holds a run: use --resume {run_dir} to continue it "
-                             "or --overwrite to replace it")
-        shutil.rmtree(run_dir)
     if args.resume is None:
-        run_dir.mkdir(parents=True, exist_ok=True)
+        _check_new_out(run_dir)
+    try:
+        writer = exclusive_writer(run_dir)
+        writer.__enter__()  # before anything is read for resume or written: one writer per run
+    except OSError as error:  # under a file, unwritable, ...
+        raise UsageError(f"cannot create --out {run_dir}: {error.strerror or error}") from None
+    try:
+        return _train_locked(args, config, preset, run_dir)
+    finally:
+        writer.__exit__(None, None, None)
+
+
+def _train_locked(args: argparse.Namespace, config: Config, preset: str, run_dir: Path) -> int:
+    """_train once this process holds the run directory's writer lock."""
+    if args.resume is None:
+        _make_room(run_dir, args.overwrite)
         # config.json first (atomically): a run killed at any later moment can be resumed.
         write_text_atomic(run_dir / "config.json", config.to_json() + "\n")
         meta = {"preset": preset, "scale": args.scale, "argv": sys.argv[1:],
@@ -184,6 +250,23 @@ def _sweep_backend(args: argparse.Namespace) -> Backend:
     return RayBackend(address=args.address, max_retries=retries)
 
 
+@contextlib.contextmanager
+def _sweep_root_lock(root: Path) -> Iterator[None]:
+    """The sweep root's writer lock; UsageError if the root cannot be a directory."""
+    if root.exists() and not root.is_dir():
+        raise UsageError(f"--root {root} is not a directory")
+    try:
+        lock = exclusive_writer(root, "sweep root")
+        lock.__enter__()
+        record_holder(root)
+    except OSError as error:
+        raise UsageError(f"cannot use --root {root}: {error.strerror or error}") from None
+    try:
+        yield
+    finally:
+        lock.__exit__(None, None, None)
+
+
 def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
     from svrpo.experiments import RunStatus, load_spec, plan, run_sweep, status
     from svrpo.experiments.backends import BackendError
@@ -207,7 +290,11 @@ def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
     try:
         if not args.dry_run and any(status(job) is not RunStatus.DONE for job in plan(spec, root)):
             backend.connect()  # before anything is written: an unreachable cluster is bad input
-        summary = run_sweep(spec, root, backend, dry_run=args.dry_run, reuse=not args.no_reuse)
+        if args.dry_run:
+            summary = run_sweep(spec, root, backend, dry_run=True, reuse=not args.no_reuse)
+        else:
+            with _sweep_root_lock(root):  # one sweep at a time per root
+                summary = run_sweep(spec, root, backend, reuse=not args.no_reuse)
     except KeyboardInterrupt:
         print("interrupted: running runs checkpointed; run the same command again to resume",
               file=sys.stderr)
@@ -265,11 +352,12 @@ def make_parser() -> argparse.ArgumentParser:
         description="Train one run. Any config field can be overridden as --field value "
         "(e.g. --max_kl 0.02 --hidden_sizes 32,32); see svrpo/config.py for the fields.",
     )
-    train.add_argument("--preset", default="svrpo", choices=PRESET_NAMES)
-    train.add_argument("--env", default="Hopper-v5", help="Gymnasium task id (Box spaces)")
-    train.add_argument("--scale", default="laptop", choices=SCALES)
-    train.add_argument("--steps", type=int, default=None, help="total environment steps")
-    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--preset", default=None, choices=PRESET_NAMES, help="default svrpo")
+    train.add_argument("--env", default=None, help="Gymnasium task id (Box spaces); default Hopper-v5")
+    train.add_argument("--scale", default=None, choices=SCALES, help="default laptop")
+    train.add_argument("--steps", type=int, default=None,
+                       help="total environment steps (with --resume: extend the run to this many)")
+    train.add_argument("--seed", type=int, default=None, help="default 0")
     train.add_argument("--out", default=None, help="run directory (default runs/ENV/PRESET/seedK)")
     train.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue a run")
     train.add_argument("--overwrite", action="store_true", help="replace an existing run directory")
@@ -349,7 +437,8 @@ def main(argv: list[str] | None = None) -> int:
     args, extra = parser.parse_known_args(argv)
     try:
         return int(args.handler(args, extra))
-    except (UsageError, ConfigError, EnvError, CheckpointError, SpecError, EvaluationError) as error:
+    except (UsageError, ConfigError, EnvError, CheckpointError, SpecError, EvaluationError,
+            LockedError) as error:
         print(f"svrpo {args.command}: error: {error}", file=sys.stderr)
         return 2
 

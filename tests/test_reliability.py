@@ -36,6 +36,7 @@ from svrpo.baselines import MlpValueFunction
 from svrpo.config import Config, ConfigError, coerce_field, field_names, make_preset
 from svrpo.estimators import GradientEstimator
 from svrpo.parameters import flat_parameters
+from svrpo.run_lock import LockedError
 from svrpo.sampling import Sampler
 from tests.helpers import nested_equal, progress_rows, without_clock
 from tests.nan_envs import NAN_REWARD_ID
@@ -274,6 +275,65 @@ def test_overwrite_replaces_a_run_and_refusal_leaves_it_untouched(tmp_path: Path
     assert len(list((out / "tensorboard").iterdir())) == 1  # the old run's events are gone
 
 
+def _tiny_train(out: Path) -> list[str]:
+    return ["train", "--preset", "trpo", "--env", ENV, "--steps", "200", "--batch_size", "100",
+            "--num_workers", "0", "--envs_per_worker", "1", "--eval_every", "0", "--out", str(out),
+            "--no-progress"]
+
+
+def _tree(path: Path) -> dict[Path, bytes]:
+    return {p: p.read_bytes() for p in path.rglob("*") if p.is_file()}
+
+
+@pytest.mark.parametrize("where", ["directory", "cwd"])
+def test_overwrite_never_deletes_a_directory_that_is_not_a_run(
+        tmp_path: Path, where: str, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A user's own directory (or the working directory, `--out .`) is refused with one line and
+    exit 2, with every file left as it was."""
+    mine = tmp_path / "thesis"
+    (mine / "chapter1").mkdir(parents=True)
+    (mine / "notes.txt").write_text("mine")
+    (mine / "chapter1" / "draft.tex").write_text("also mine")
+    before = _tree(mine)
+    out = mine
+    if where == "cwd":
+        monkeypatch.chdir(mine)
+        out = Path(".")
+    assert cli.main([*_tiny_train(out), "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no svrpo run" in err[0], err
+    assert _tree(mine) == before and sorted(p.name for p in mine.iterdir()) == ["chapter1", "notes.txt"]
+    assert cli.main(_tiny_train(out)) == 2  # without --overwrite: refused the same way
+    assert _tree(mine) == before
+
+
+def test_overwrite_replaces_only_the_files_a_run_writes(tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    assert cli.main(_tiny_train(out)) == 0
+    (out / "my_analysis.ipynb").write_text("keep me")
+    assert cli.main([*_tiny_train(out), "--seed", "3", "--overwrite"]) == 0
+    assert (out / "my_analysis.ipynb").read_text() == "keep me"
+    assert "kept 1 entries" in capsys.readouterr().err
+    assert Config.from_json((out / "config.json").read_text()).seed == 3
+
+
+def test_output_path_that_is_a_file_or_a_symlink_is_refused(tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    a_file = tmp_path / "results.txt"
+    a_file.write_text("data")
+    target = tmp_path / "elsewhere"
+    target.mkdir()
+    link = tmp_path / "link"
+    link.symlink_to(target, target_is_directory=True)
+    for out in (a_file, a_file / "run", link):
+        assert cli.main([*_tiny_train(out), "--overwrite"]) == 2, out
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "Traceback" not in err[0], err
+    assert a_file.read_text() == "data" and list(target.iterdir()) == []
+
+
 def test_training_afresh_in_a_used_directory_leaves_nothing_of_the_old_run(tmp_path: Path) -> None:
     """train(resume=False) starts over: a longer earlier run's checkpoints would otherwise outrank
     the new ones (prune would delete them, resume would pick the old run)."""
@@ -503,3 +563,115 @@ def test_workers_that_keep_dying_stop_the_run_clearly_then_resume_loses_nothing(
     monkeypatch.undo()
     assert cli.main(["train", "--resume", str(run_dir), "--no-progress"]) == 0
     _assert_same_run(run_dir, reference)
+
+
+# --- one writer per run directory and per sweep root -------------------------------------------
+
+_HOLD_LOCK = """
+import sys, time
+from pathlib import Path
+from svrpo.run_lock import exclusive_writer, record_holder
+with exclusive_writer(Path(sys.argv[1])):
+    record_holder(Path(sys.argv[1]))
+    print("locked", flush=True)
+    time.sleep(120)
+"""
+
+
+@contextlib.contextmanager
+def _lock_held_elsewhere(directory: Path) -> Any:
+    """Another process holding `directory`'s writer lock; yields it (SIGKILL to end it)."""
+    holder = subprocess.Popen([sys.executable, "-c", _HOLD_LOCK, str(directory)], stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "locked"
+        yield holder
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_a_second_writer_is_refused_naming_the_holder_and_a_killed_holder_blocks_nothing(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    assert cli.main([*_tiny_train(out), "--steps", "100"]) == 0
+    config = json.loads((out / "config.json").read_text())
+    config["total_steps"] = 200
+    (out / "config.json").write_text(json.dumps(config))  # so that a resume has work to do
+    before = _tree(out)
+    capsys.readouterr()
+    with _lock_held_elsewhere(out) as holder:
+        assert cli.main(["train", "--resume", str(out), "--no-progress"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"pid {holder.pid}" in err[0], err
+        assert _tree(out) == {**before, out / "writer.lock": (out / "writer.lock").read_bytes()}
+        with pytest.raises(LockedError):  # the library refuses too, not only the CLI
+            train(Config.from_json((out / "config.json").read_text()), out, resume=True,
+                  show_progress=False)
+    # The holder was SIGKILLed: its lock went with it, the resume goes ahead.
+    assert cli.main(["train", "--resume", str(out), "--no-progress"]) == 0
+    assert [row["iteration"] for row in progress_rows(out)] == ["1", "2"]
+
+
+def test_two_resumes_started_together_leave_one_writer_and_no_duplicated_rows(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    assert cli.main([*_tiny_train(out), "--steps", "100"]) == 0
+    config = json.loads((out / "config.json").read_text())
+    config["total_steps"] = 1500
+    (out / "config.json").write_text(json.dumps(config))
+    command = [sys.executable, "-m", "svrpo.cli", "train", "--resume", str(out), "--no-progress"]
+    both = [subprocess.Popen(command, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    results = [(process.wait(timeout=300), process.stderr.read() if process.stderr else "")
+               for process in both]
+    assert sorted(code for code, _ in results) == [0, 2], results
+    refused = next(err for code, err in results if code == 2)
+    assert "already being written by" in refused and "Traceback" not in refused
+    assert [row["iteration"] for row in progress_rows(out)] == [str(i) for i in range(1, 16)]
+
+
+def test_a_second_sweep_on_the_same_root_is_refused(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    root = tmp_path / "root"
+    with _lock_held_elsewhere(root) as holder:
+        assert cli.main(["sweep", "figure2", "--root", str(root), "--steps", "10000"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"pid {holder.pid}" in err[0], err
+    assert sorted(p.name for p in root.iterdir()) == ["writer.lock"]  # no run was started
+
+
+@pytest.mark.parametrize("flags", [["--seed", "3"], ["--preset", "svrpo"], ["--env", "Hopper-v5"],
+                                   ["--scale", "paper"], ["--out", "elsewhere"], ["--overwrite"],
+                                   ["--max_kl", "0.02"], ["--steps", "100"]])
+def test_resume_refuses_flags_it_would_ignore(tmp_path: Path, flags: list[str],
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """--resume runs the saved config.json: any other flag is refused in one line with nothing
+    written (--steps only extends a run: fewer steps than the run's are refused too)."""
+    out = tmp_path / "run"
+    assert cli.main([*_tiny_train(out), "--steps", "200"]) == 0
+    before = _tree(out)
+    capsys.readouterr()
+    assert cli.main(["train", "--resume", str(out), "--no-progress", *flags]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and flags[0] in err[0], err
+    assert _tree(out) == before
+
+
+def test_resume_with_more_steps_extends_the_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out, whole = tmp_path / "run", tmp_path / "whole"
+    assert cli.main([*_tiny_train(out), "--steps", "200"]) == 0
+    assert cli.main(["train", "--resume", str(out), "--no-progress", "--steps", "400"]) == 0
+    assert "extending the run from 200 to 400 steps" in capsys.readouterr().err
+    assert Config.from_json((out / "config.json").read_text()).total_steps == 400
+    assert cli.main([*_tiny_train(whole), "--steps", "400"]) == 0
+    assert without_clock(progress_rows(out)) == without_clock(progress_rows(whole))
+
+
+@pytest.mark.parametrize("flags", [["--env", "Hopper-v5", "--env_id", "Walker2d-v5"],
+                                   ["--steps", "200", "--total_steps", "300"]])
+def test_a_flag_and_the_field_it_sets_are_not_both_accepted(tmp_path: Path, flags: list[str],
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    assert cli.main(["train", "--out", str(out), "--no-progress", *flags]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "same field" in err[0], err
+    assert not out.exists()

@@ -21,6 +21,7 @@ from svrpo import checkpoint
 from svrpo.atomic import write_text_atomic
 from svrpo.config import Config, differing_fields
 from svrpo.experiments.specs import ExperimentSpec, SpecError
+from svrpo.run_files import foreign_entries
 
 
 class RunStatus(str, Enum):
@@ -153,7 +154,13 @@ def adopt(job: RunJob, source: Path) -> None:
                  "copied_from": str(source)})
     write_text_atomic(staging / "run.json", json.dumps(meta, indent=2) + "\n")
     if job.run_dir.exists():
-        shutil.rmtree(job.run_dir)
+        # Only a run's own files go; a directory holding anything else is left as it is.
+        foreign = foreign_entries(job.run_dir) if job.run_dir.is_dir() else [job.run_dir.name]
+        if foreign:
+            shutil.rmtree(staging, ignore_errors=True)
+            raise SpecError(f"{job.run_dir} holds entries a run does not write ({', '.join(foreign[:3])}); "
+                            "move them away, nothing was deleted")
+        shutil.rmtree(job.run_dir)  # every entry in it is one a run writes
     staging.replace(job.run_dir)
 
 
