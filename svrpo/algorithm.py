@@ -195,17 +195,7 @@ def _load_learned_state(run: Run, saved: dict[str, Any]) -> None:
 
 def _nonfinite_learned_state(run: Run) -> list[str]:
     """Which of policy, baseline and normaliser hold a non-finite number (optimizer state included)."""
-    def tensors(value: Any) -> list[torch.Tensor]:
-        if isinstance(value, torch.Tensor):
-            return [value] if value.is_floating_point() else []
-        if isinstance(value, dict):
-            return [t for item in value.values() for t in tensors(item)]
-        if isinstance(value, (list, tuple)):
-            return [t for item in value for t in tensors(item)]
-        return []
-
-    parts = {name: tensors(state) for name, state in _learned_state_views(run).items()}
-    return [name for name, found in parts.items() if not all(bool(torch.isfinite(t).all()) for t in found)]
+    return [name for name, state in _learned_state_views(run).items() if checkpoint.nonfinite_tensors(state)]
 
 
 def _with_workers(run: Run, call: Callable[[Sampler], _T], iteration: int) -> _T:

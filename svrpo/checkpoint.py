@@ -97,9 +97,32 @@ def load(path: Path) -> dict[str, Any]:
     if state["format"] != FORMAT:
         raise CheckpointError(f"{path} has checkpoint format {state['format']!r}, this svrpo reads {FORMAT}")
     try:
-        return dict(from_storable(state))
+        loaded = dict(from_storable(state))
     except (ValueError, TypeError, AttributeError) as error:
         raise CheckpointError(f"{path} is not an svrpo checkpoint: {error}") from None
+    broken = nonfinite_tensors({part: loaded.get(part) for part in _LEARNED_PARTS})
+    if broken:
+        shown = ", ".join(broken[:3]) + (", ..." if len(broken) > 3 else "")
+        raise CheckpointError(f"{path} holds non-finite values in {shown}: refused (a NaN policy "
+                              "would only skip every update)")
+    return loaded
+
+
+_LEARNED_PARTS = ("policy", "baseline", "normalizer")
+"""The learned state in a checkpoint: every floating-point tensor in it must be finite."""
+
+
+def nonfinite_tensors(value: Any, name: str = "") -> list[str]:
+    """Dotted names of the floating-point tensors (nested in dicts/lists) holding NaN or inf."""
+    if isinstance(value, torch.Tensor):
+        finite = not value.is_floating_point() or bool(torch.isfinite(value).all())
+        return [] if finite else [name]
+    if isinstance(value, dict):
+        return [found for key, item in value.items()
+                for found in nonfinite_tensors(item, f"{name}.{key}".lstrip("."))]
+    if isinstance(value, (list, tuple)):
+        return [n for index, item in enumerate(value) for n in nonfinite_tensors(item, f"{name}.{index}")]
+    return []
 
 
 def one_line(error: BaseException) -> str:

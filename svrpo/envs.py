@@ -102,6 +102,15 @@ def _check_spaces(env_id: str, env: gym.Env) -> None:
                 f"{env_id!r} has a {name} Box of shape {space.shape}; only 1-D Boxes are "
                 "supported (flatten it with a wrapper first)."
             )
+    action_space = env.action_space
+    assert isinstance(action_space, gym.spaces.Box)
+    if not (np.isfinite(action_space.low).all() and np.isfinite(action_space.high).all()):
+        raise EnvError(
+            f"{env_id!r} has unbounded actions (low {action_space.low}, high {action_space.high}); "
+            "the policy's actions in [-1, 1] are rescaled to the action box, which needs finite "
+            "bounds (wrap the env with gymnasium.wrappers.ClipAction over a finite Box, or "
+            "RescaleAction)."
+        )
 
 
 def env_info(env_id: str, max_episode_steps: int | None = None) -> EnvInfo:

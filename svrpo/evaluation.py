@@ -93,8 +93,15 @@ def load_policy(path: Path) -> LoadedPolicy:
     from svrpo.normalization import RunningMeanStd
     from svrpo.policy import GaussianMlpPolicy
 
-    source = find_checkpoint(path)
-    state = checkpoint.load(source)
+    if path.is_dir():  # a run directory: its newest readable checkpoint, as `train --resume`
+        if not checkpoint.list_checkpoints(path / "checkpoints"):
+            find_checkpoint(path)  # raises the one-line "no checkpoints" error
+        state, source, skipped = checkpoint.load_latest(path / "checkpoints")
+        for warning in skipped:
+            print(f"warning: {warning}", file=sys.stderr)
+    else:
+        source = find_checkpoint(path)
+        state = checkpoint.load(source)
     try:
         config = Config.from_json(state["config"])
         info = env_info(config.env_id, config.max_episode_steps)

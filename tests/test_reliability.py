@@ -25,6 +25,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import gymnasium
+import numpy as np
 import pytest
 import torch
 from hypothesis import HealthCheck, given, settings
@@ -674,4 +676,55 @@ def test_a_flag_and_the_field_it_sets_are_not_both_accepted(tmp_path: Path, flag
     assert cli.main(["train", "--out", str(out), "--no-progress", *flags]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "same field" in err[0], err
+    assert not out.exists()
+
+
+# --- untrusted numbers in files ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("part", "value"), [("policy", math.nan), ("policy", math.inf),
+                                             ("normalizer", math.nan)])
+def test_checkpoint_with_non_finite_parameters_is_refused_and_older_one_used(
+        tmp_path: Path, part: str, value: float, capsys: pytest.CaptureFixture[str]) -> None:
+    """A checkpoint whose policy or normaliser holds NaN/inf is refused naming the tensor; resume
+    and evaluate fall back to the older good checkpoint (a NaN policy would skip every update and
+    still exit 0, and evaluate would print a return for it)."""
+    out = tmp_path / "run"
+    assert cli.main([*_tiny_train(out), "--steps", "300", "--checkpoint_every", "1",
+                     "--normalize_observations", "true"]) == 0
+    newest = checkpoint.list_checkpoints(out / "checkpoints")[0]
+    state = torch.load(newest, weights_only=True)
+    tensor = next(t for t in state[part].values() if isinstance(t, torch.Tensor) and t.is_floating_point())
+    tensor.view(-1)[0] = value
+    torch.save(state, newest)
+    with pytest.raises(checkpoint.CheckpointError, match=f"non-finite values in {part}\\."):
+        checkpoint.load(newest)
+    capsys.readouterr()
+    assert cli.main(["evaluate", str(out), "--episodes", "1"]) == 0
+    captured = capsys.readouterr()
+    assert "non-finite" in captured.err and "iter_000002.pt" in captured.out + captured.err
+    config = json.loads((out / "config.json").read_text())
+    (out / "config.json").write_text(json.dumps({**config, "total_steps": 400}))
+    assert cli.main(["train", "--resume", str(out), "--no-progress"]) == 0
+    assert "trying an older checkpoint" in capsys.readouterr().err
+    rows = progress_rows(out)
+    assert [row["iteration"] for row in rows] == ["1", "2", "3", "4"]
+    assert all(math.isfinite(float(row["entropy"])) for row in rows)
+
+
+class _UnboundedActions(gymnasium.Env):  # type: ignore[type-arg]
+    observation_space = gymnasium.spaces.Box(-1.0, 1.0, (2,))
+    action_space = gymnasium.spaces.Box(-np.inf, np.inf, (1,))
+
+
+gymnasium.register("SvrpoTestUnboundedActions-v0", entry_point=_UnboundedActions, max_episode_steps=10)
+
+
+def test_infinite_action_bounds_are_refused_in_one_line(tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    assert cli.main(["train", "--env", "SvrpoTestUnboundedActions-v0", "--out", str(out),
+                     "--num_workers", "0", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unbounded actions" in err[0], err
     assert not out.exists()
