@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 from svrpo.atomic import write_text_atomic
 from svrpo.checkpoint import CheckpointError
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, make_preset
-from svrpo.envs import EnvError, env_info
+from svrpo.envs import EnvError, check_import_allowed, env_info
 from svrpo.evaluation import EvaluationError
 from svrpo.experiments.specs import SpecError
 from svrpo.run_files import clear_run, holds_anything, is_run_directory
@@ -120,6 +120,7 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
             raise
         except (OSError, ValueError, TypeError) as error:  # e.g. a config.json cut short by a crash
             raise UsageError(f"--resume: cannot read {config_path}: {error}") from None
+        check_import_allowed(config.env_id, args.allow_import, config_path)
         given = [f"--{name}" for name in ("preset", "env", "scale", "seed", "out")
                  if getattr(args, name) is not None] + (["--overwrite"] if args.overwrite else [])
         given += [token.split("=")[0] for token in extra if token.startswith("--")]
@@ -319,7 +320,9 @@ def _evaluate(args: argparse.Namespace, extra: list[str]) -> int:
     width, _, height = args.video_size.partition("x")
     if not (width.isdigit() and height.isdigit()):
         raise UsageError(f"--video-size must be WIDTHxHEIGHT, e.g. 480x480; got {args.video_size!r}")
-    result = evaluate(Path(args.path), args.episodes, args.seed)
+    if args.video:  # a video path that cannot be written fails now, not after the evaluation
+        _check_writable(Path(args.video), "--video")
+    result = evaluate(Path(args.path), args.episodes, args.seed, args.allow_import)
     policy = result.policy
     print(f"{policy.config.env_id}, iteration {policy.iteration} ({policy.env_steps} steps), "
           f"{policy.checkpoint}: return {result.mean:.2f} +- {result.std:.2f} (mean +- std over "
@@ -328,10 +331,22 @@ def _evaluate(args: argparse.Namespace, extra: list[str]) -> int:
     print("returns: " + " ".join(f"{value:.2f}" for value in result.returns))
     if args.video:
         video = record_video(Path(args.path), Path(args.video), args.video_episodes, args.seed,
-                             (int(width), int(height)))
+                             (int(width), int(height)), args.allow_import)
         print(f"wrote {video.path}: {video.frames} frames at {video.fps:.1f} fps "
               f"({args.video_episodes} episode(s), MUJOCO_GL={video.backend})")
     return 0
+
+
+def _check_writable(path: Path, flag: str) -> None:
+    """UsageError unless `path` can be created (its directory exists or can be made, writable)."""
+    if path.is_dir():
+        raise UsageError(f"{flag} {path} is a directory; give a file name")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise UsageError(f"{flag} {path}: cannot create its directory: {error.strerror or error}") from None
+    if not os.access(path.parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise UsageError(f"{flag} {path} is not writable")
 
 
 def _bench(args: argparse.Namespace, extra: list[str]) -> int:
@@ -362,6 +377,9 @@ def make_parser() -> argparse.ArgumentParser:
     train.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue a run")
     train.add_argument("--overwrite", action="store_true", help="replace an existing run directory")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
+    train.add_argument("--allow-import", action="append", default=[], metavar="MODULE",
+                       help="with --resume: allow a config.json naming a 'MODULE:Env' task to import "
+                            "MODULE (runs its code)")
     train.set_defaults(handler=_train)
     plot = commands.add_parser(
         "plot",
@@ -424,6 +442,8 @@ def make_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--video", default=None, metavar="OUT.mp4", help="also render episodes to MP4")
     evaluate.add_argument("--video-episodes", type=int, default=1, help="episodes in the video")
     evaluate.add_argument("--video-size", default="480x480", help="WIDTHxHEIGHT in pixels")
+    evaluate.add_argument("--allow-import", action="append", default=[], metavar="MODULE",
+                          help="allow a file naming a 'MODULE:Env' task to import MODULE (runs its code)")
     evaluate.set_defaults(handler=_evaluate)
     # `svrpo bench` owns its options (svrpo/bench.py); everything after `bench` is passed through.
     bench = commands.add_parser("bench", add_help=False,

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import difflib
 import importlib
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any
 
@@ -68,6 +69,18 @@ def horizon(env_id: str, max_episode_steps: int | None = None) -> int:
         return max_episode_steps
     registered = gym.spec(registered_id(env_id)).max_episode_steps
     return DEFAULT_HORIZON if registered is None else int(registered)
+
+
+def check_import_allowed(env_id: str, allowed: Collection[str], source: object) -> None:
+    """EnvError unless env_id names no module, or its module is among `allowed`.
+
+    A "module:Env" id read from a file (a checkpoint, a config.json) would import that module,
+    running its code: loading a file must not do that unless the user names the module.
+    """
+    module = env_id.rpartition(":")[0]
+    if module and module not in allowed:
+        raise EnvError(f"{source} names the task {env_id!r}: using it imports the module {module!r}, "
+                       f"which runs its code; if you trust the file, pass --allow-import {module}")
 
 
 def registered_id(env_id: str) -> str:

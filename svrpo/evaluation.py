@@ -15,7 +15,7 @@ import json
 import os
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,7 +24,7 @@ import numpy as np
 
 from svrpo import checkpoint
 from svrpo.config import Config
-from svrpo.envs import env_info, horizon, make_env, registered_id, scale_action
+from svrpo.envs import check_import_allowed, env_info, horizon, make_env, registered_id, scale_action
 from svrpo.policy_snapshot import PolicySnapshot
 
 GL_BACKENDS = ("egl", "osmesa")
@@ -83,10 +83,12 @@ def find_checkpoint(path: Path) -> Path:
     return found[0]
 
 
-def load_policy(path: Path) -> LoadedPolicy:
+def load_policy(path: Path, allow_import: Collection[str] = ()) -> LoadedPolicy:
     """Rebuild the policy and normaliser of a run directory's latest checkpoint (or a .pt file).
 
     The checkpoint is read with weights_only=True (svrpo.checkpoint.load): no pickled code runs.
+    A task id of the form "module:Env" in it is refused (EnvError) unless the module is in
+    `allow_import`: creating the env would import the module, running its code.
     """
     import torch
 
@@ -104,6 +106,7 @@ def load_policy(path: Path) -> LoadedPolicy:
         state = checkpoint.load(source)
     try:
         config = Config.from_json(state["config"])
+        check_import_allowed(config.env_id, allow_import, source)
         info = env_info(config.env_id, config.max_episode_steps)
         policy = GaussianMlpPolicy(info.obs_dim, info.act_dim, config.hidden_sizes, config.init_log_std)
         policy.load_state_dict(state["policy"])
@@ -156,11 +159,14 @@ def run_episodes(policy: LoadedPolicy, episodes: int, seed: int, env: gym.Env | 
     return returns, lengths
 
 
-def evaluate(path: Path, episodes: int = 10, seed: int = 0) -> Evaluation:
+def evaluate(path: Path, episodes: int = 10, seed: int = 0,
+             allow_import: Collection[str] = ()) -> Evaluation:
     """Deterministic returns of the policy in a run directory (latest checkpoint) or .pt file."""
     if episodes < 1:
         raise EvaluationError(f"episodes must be >= 1; got {episodes}")
-    policy = load_policy(path)
+    if seed < 0:
+        raise EvaluationError(f"seed must be >= 0; got {seed}")
+    policy = load_policy(path, allow_import)
     returns, lengths = run_episodes(policy, episodes, seed)
     return Evaluation(policy, seed, returns, lengths)
 
@@ -179,7 +185,7 @@ class Video:
 
 
 def record_video(path: Path, out: Path, episodes: int = 1, seed: int = 0,
-                 size: tuple[int, int] = (480, 480)) -> Video:
+                 size: tuple[int, int] = (480, 480), allow_import: Collection[str] = ()) -> Video:
     """Render deterministic episodes seed.. of the policy at `path` to an H.264 MP4 at `out`.
 
     Runs `python -m svrpo.evaluation` with MUJOCO_GL set for that child only, trying the
@@ -195,7 +201,7 @@ def record_video(path: Path, out: Path, episodes: int = 1, seed: int = 0,
     errors = []
     for backend in (user_choice,) if user_choice else GL_BACKENDS:
         command = [sys.executable, "-m", "svrpo.evaluation", str(path), str(out), str(episodes),
-                   str(seed), str(width), str(height)]
+                   str(seed), str(width), str(height), ",".join(allow_import)]
         child = subprocess.run(command, capture_output=True, text=True,
                                env={**os.environ, "MUJOCO_GL": backend})
         if child.returncode == 0:
@@ -215,8 +221,8 @@ def _render_child(argv: list[str]) -> int:
     """The child of record_video: render, encode, print one JSON line (frames, fps, returns)."""
     import imageio.v2 as imageio
 
-    path, out, episodes, seed, width, height = Path(argv[0]), Path(argv[1]), *map(int, argv[2:])
-    policy = load_policy(path)
+    path, out, episodes, seed, width, height = Path(argv[0]), Path(argv[1]), *map(int, argv[2:6])
+    policy = load_policy(path, [module for module in argv[6].split(",") if module])
     config = policy.config
     limit = horizon(config.env_id, config.max_episode_steps)
     env = gym.make(registered_id(config.env_id), max_episode_steps=limit, render_mode="rgb_array",
