@@ -14,11 +14,11 @@ a quick version (about a minute on 2 cores).
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
 import statistics
+import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -31,7 +31,8 @@ import mujoco.rollout
 import numpy as np
 import torch
 
-from svrpo.envs import make_env, scale_action
+from svrpo.arguments import OneLineParser
+from svrpo.envs import EnvError, env_info, is_mujoco_task, make_env, scale_action
 from svrpo.policy import GaussianMlpPolicy
 from svrpo.policy_snapshot import PolicySnapshot
 from svrpo.sampling import Batch, Sampler, steps_per_env
@@ -417,7 +418,7 @@ def trained_snapshot(env_id: str, iterations: int, seed: int = 0) -> tuple[Polic
 
 def main(argv: list[str] | None = None) -> int:
     """`svrpo bench`: a quick sampling-vs-physics ratio and update-cost breakdown; prints ratios."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="svrpo bench", description="Quick performance check: sampling vs raw physics, update cost."
     )
     parser.add_argument("--env", default="Hopper-v5")
@@ -427,6 +428,19 @@ def main(argv: list[str] | None = None) -> int:
                         help="N for the update measurement (m = N/10, J = 50: the paper's Hopper ratios)")
     parser.add_argument("--out", type=Path, default=None, help="also write the results as JSON here")
     args = parser.parse_args(argv)
+    counts = (("--steps", args.steps), ("--repeats", args.repeats), ("--batch-size", args.batch_size))
+    for flag, value in counts:
+        if value < 1:
+            print(f"svrpo bench: error: {flag} must be >= 1; got {value}", file=sys.stderr)
+            return 2
+    try:
+        env_info(args.env)
+        if not is_mujoco_task(args.env):
+            raise EnvError(f"{args.env!r} is not a MuJoCo task: svrpo bench compares sampling with raw "
+                           "MuJoCo physics")
+    except EnvError as error:
+        print(f"svrpo bench: error: {error}", file=sys.stderr)
+        return 2
     machine = machine_info()
     print(f"svrpo bench on {machine['cpu_count']} cores ({machine['processor']}), load "
           f"{machine['load_average_1_5_15min'][0]:.2f}")

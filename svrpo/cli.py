@@ -6,24 +6,24 @@ Bad input: one line on stderr, exit code 2.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import platform
 import signal
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from svrpo.arguments import CommandLineError, OneLineParser
 from svrpo.atomic import write_text_atomic
 from svrpo.checkpoint import CheckpointError
+from svrpo.checkpoint import one_line as checkpoint_one_line
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, make_preset
 from svrpo.envs import EnvError, check_import_allowed, env_info
 from svrpo.evaluation import EvaluationError
 from svrpo.experiments.specs import SpecError
 from svrpo.run_files import clear_run, holds_anything, is_run_directory
-from svrpo.run_lock import LockedError, exclusive_writer, record_holder
+from svrpo.run_lock import LockedError, exclusive_writer
 
 if TYPE_CHECKING:
     from svrpo.experiments.backends import Backend
@@ -189,6 +189,26 @@ def _train_locked(args: argparse.Namespace, config: Config, preset: str, run_dir
     return 0
 
 
+def _readable_runs(run_dirs: list[Path]) -> tuple[list[Path], set[str]]:
+    """The runs whose config.json and progress.csv parse, and the columns they have; each
+    skipped run is named in one line (a half-written cell in one run must not stop the report)."""
+    from svrpo.logging import read_progress
+
+    readable: list[Path] = []
+    columns: set[str] = set()
+    for run_dir in run_dirs:
+        try:
+            json.loads((run_dir / "config.json").read_text())["env_id"]  # noqa: B018 - a check
+            read_progress(run_dir / "progress.csv")  # every cell must parse
+        except (OSError, ValueError, KeyError, TypeError) as error:
+            print(f"skipped {run_dir}: unreadable ({checkpoint_one_line(error)})", file=sys.stderr)
+            continue
+        readable.append(run_dir)
+        with open(run_dir / "progress.csv") as handle:  # the header, also of a run with no rows yet
+            columns.update(handle.readline().strip().split(","))
+    return readable, columns
+
+
 def _plot(args: argparse.Namespace, extra: list[str]) -> int:
     """Run directories given by name: one learning-curve PNG, as before. Directories above runs
     (a sweep root): a report per experiment (svrpo.experiments.report) for runs made by
@@ -202,12 +222,20 @@ def _plot(args: argparse.Namespace, extra: list[str]) -> int:
     for path in paths:
         if not path.exists():
             raise UsageError(f"{path} does not exist")
+    if args.smooth < 1:
+        raise UsageError(f"--smooth must be >= 1 iteration; got {args.smooth}")
+    if args.out:
+        _check_writable(Path(args.out), "--out")
     named = [p for p in paths if (p / "progress.csv").is_file()]
     roots = [p for p in paths if p not in named]
-    experiments, plain = group_by_experiment(find_run_dirs(roots)) if roots else ({}, [])
-    plain = named + plain
-    if not plain and not experiments:
-        raise UsageError(f"no run directory (with progress.csv) under {', '.join(map(str, paths))}")
+    readable, columns = _readable_runs(named + (find_run_dirs(roots) if roots else []))
+    if not readable:
+        raise UsageError(f"no run directory (readable progress.csv) under {', '.join(map(str, paths))}")
+    if args.metric not in columns:
+        raise UsageError(f"--metric {args.metric!r} is not a progress.csv column; the runs have "
+                         f"{', '.join(sorted(columns)[:8])}, ...")
+    experiments, plain = group_by_experiment([p for p in readable if p not in named])
+    plain = [p for p in named if p in readable] + plain
     for (experiment, scale), run_dirs in sorted(experiments.items()):
         out_dir = Path(args.report_dir) / f"{experiment}-{scale}" if args.report_dir else \
             default_report_dir(run_dirs)
@@ -251,23 +279,6 @@ def _sweep_backend(args: argparse.Namespace) -> Backend:
     return RayBackend(address=args.address, max_retries=retries)
 
 
-@contextlib.contextmanager
-def _sweep_root_lock(root: Path) -> Iterator[None]:
-    """The sweep root's writer lock; UsageError if the root cannot be a directory."""
-    if root.exists() and not root.is_dir():
-        raise UsageError(f"--root {root} is not a directory")
-    try:
-        lock = exclusive_writer(root, "sweep root")
-        lock.__enter__()
-        record_holder(root)
-    except OSError as error:
-        raise UsageError(f"cannot use --root {root}: {error.strerror or error}") from None
-    try:
-        yield
-    finally:
-        lock.__exit__(None, None, None)
-
-
 def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
     from svrpo.experiments import RunStatus, load_spec, plan, run_sweep, status
     from svrpo.experiments.backends import BackendError
@@ -291,11 +302,7 @@ def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
     try:
         if not args.dry_run and any(status(job) is not RunStatus.DONE for job in plan(spec, root)):
             backend.connect()  # before anything is written: an unreachable cluster is bad input
-        if args.dry_run:
-            summary = run_sweep(spec, root, backend, dry_run=True, reuse=not args.no_reuse)
-        else:
-            with _sweep_root_lock(root):  # one sweep at a time per root
-                summary = run_sweep(spec, root, backend, reuse=not args.no_reuse)
+        summary = run_sweep(spec, root, backend, dry_run=args.dry_run, reuse=not args.no_reuse)
     except KeyboardInterrupt:
         print("interrupted: running runs checkpointed; run the same command again to resume",
               file=sys.stderr)
@@ -356,10 +363,10 @@ def _bench(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="svrpo", description="SVRPO and TRPO on Gymnasium MuJoCo tasks."
     )
-    commands = parser.add_subparsers(dest="command", required=True)
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     train = commands.add_parser(
         "train",
         allow_abbrev=False,
@@ -454,9 +461,16 @@ def make_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = make_parser()
-    args, extra = parser.parse_known_args(argv)
+    try:
+        args, extra = parser.parse_known_args(argv)
+    except CommandLineError as error:
+        print(error, file=sys.stderr)
+        return 2
     try:
         return int(args.handler(args, extra))
+    except CommandLineError as error:  # a subcommand's own parser (svrpo bench)
+        print(error, file=sys.stderr)
+        return 2
     except (UsageError, ConfigError, EnvError, CheckpointError, SpecError, EvaluationError,
             LockedError) as error:
         print(f"svrpo {args.command}: error: {error}", file=sys.stderr)

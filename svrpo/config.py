@@ -236,7 +236,7 @@ def validate(config: Config) -> Config:
         (c.batch_size >= 1, "batch_size (N) must be >= 1"),
         (c.total_steps >= c.batch_size, "total_steps must be >= batch_size (N)"),
         (0 < c.max_kl < math.inf, "max_kl (delta) must be > 0 and finite"),
-        (math.isfinite(c.init_log_std), "init_log_std must be finite"),
+        (-20.0 <= c.init_log_std <= 20.0, "init_log_std must be in [-20, 20] (std = exp(init_log_std))"),
         (0 < c.fisher_subsample <= 1, "fisher_subsample (nu) must be in (0, 1]"),
         (c.inner_steps >= 1, "inner_steps (J) must be >= 1"),
         (c.minibatch_size >= 1, "minibatch_size (m) must be >= 1"),

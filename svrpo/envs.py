@@ -94,6 +94,9 @@ def registered_id(env_id: str) -> str:
             importlib.import_module(module)
         except ImportError as error:
             raise EnvError(f"cannot import {module!r} for environment {env_id!r}: {error}") from None
+        except Exception as error:  # the module's own code failed while it was imported
+            raise EnvError(f"importing {module!r} for environment {env_id!r} raised "
+                           f"{type(error).__name__}: {' '.join(str(error).split())}") from None
         env_id = name
     if env_id not in gym.registry:
         matches = difflib.get_close_matches(env_id, list(gym.registry.keys()), n=3, cutoff=0.6)
@@ -185,6 +188,16 @@ def set_env_state(env: gym.Env, state: dict[str, Any]) -> None:
     env.unwrapped.np_random.bit_generator.state = state["np_random"]
     if state["elapsed_steps"] is not None:
         env.set_wrapper_attr("_elapsed_steps", int(state["elapsed_steps"]), force=False)
+
+
+def is_mujoco_task(env_id: str) -> bool:
+    """Whether env_id's environment is a MuJoCo simulation (has MjModel and MjData)."""
+    env = make_env(env_id)
+    try:
+        base = env.unwrapped
+        return isinstance(getattr(base, "model", None), mujoco.MjModel)
+    finally:
+        env.close()
 
 
 def _mujoco_handles(env: gym.Env) -> tuple[Any, Any]:

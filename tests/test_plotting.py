@@ -185,3 +185,28 @@ def test_iterations_without_finished_episodes_do_not_break_the_line(
     plot_panels({"Swimmer-v5": {"trpo": runs}}, tmp_path / "curve.png", "return")
     assert len(drawn) == 1
     assert drawn[0].tolist() == [3.0, 6.0, 9.0, 12.0, 15.0, 18.0]
+
+
+def test_one_unreadable_run_is_skipped_by_name_and_the_rest_plotted(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A half-written cell in one run (a run killed mid-row) must not stop the report."""
+    returns = [float(k) for k in range(1, ITERATIONS + 1)]
+    good = write_run(tmp_path, "Hopper-v5", "trpo", 0, returns, experiment=None)
+    bad = write_run(tmp_path, "Hopper-v5", "trpo", 1, returns, experiment=None)
+    with open(bad / "progress.csv", "a") as handle:
+        handle.write("999,1e")  # cut inside a number
+    out = tmp_path / "curve.png"
+    assert main(["plot", str(good), str(bad), "--out", str(out)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"skipped {bad}"), err
+    assert out.is_file()
+
+
+@pytest.mark.parametrize("flags", [["--metric", "no_such_column"], ["--smooth", "0"], ["--smooth", "-3"]])
+def test_plot_refuses_an_unknown_metric_and_a_non_positive_window(
+        tmp_path: Path, flags: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    run = write_run(tmp_path, "Hopper-v5", "trpo", 0, [1.0] * ITERATIONS, experiment=None)
+    assert main(["plot", str(run), *flags]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and flags[0] in err[0], err
+    assert not (run / "learning_curve.png").exists()

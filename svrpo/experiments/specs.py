@@ -127,7 +127,7 @@ def spec_from_dict(data: Any, default_name: str = "sweep", source: str = "spec")
         if key not in data:
             raise SpecError(f"{source}: missing '{key}' (a list)")
     name = str(data.get("name", default_name))
-    if not name or "/" in name or name.startswith("."):
+    if not name or "/" in name or name.startswith(".") or not name.isprintable():
         raise SpecError(f"{source}: name {name!r} cannot be a directory name")
     presets = _string_list(data["presets"], "presets", source)
     for preset in presets:

@@ -22,7 +22,8 @@ from svrpo.experiments.jobs import (
     prepare,
     status,
 )
-from svrpo.experiments.specs import ExperimentSpec
+from svrpo.experiments.specs import ExperimentSpec, SpecError
+from svrpo.run_lock import exclusive_writer, record_holder
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,23 @@ def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool 
     if not todo:
         _say("nothing to run")
         return summary
+    if root.exists() and not root.is_dir():
+        raise SpecError(f"the sweep root {root} is not a directory")
+    try:
+        lock = exclusive_writer(root, "sweep root")  # one sweep at a time per root
+        lock.__enter__()
+    except OSError as error:
+        raise SpecError(f"cannot write the sweep root {root}: {error.strerror or error}") from None
+    try:
+        record_holder(root)
+        return _run_todo(todo, jobs, copies, counts, summary, root, backend)
+    finally:
+        lock.__exit__(None, None, None)
+
+
+def _run_todo(todo: list[RunJob], jobs: list[RunJob], copies: dict[Path, Path], counts: Counter[RunStatus],
+              summary: SweepSummary, root: Path, backend: Backend) -> SweepSummary:
+    """run_sweep's writing half, under the sweep root's lock: copy, prepare and train the runs."""
     for job in todo:
         if job.run_dir in copies:
             adopt(job, copies[job.run_dir])
