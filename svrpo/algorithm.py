@@ -324,8 +324,12 @@ def snapshot_of(run: Run) -> PolicySnapshot:
     return run.policy.snapshot(run.normalizer.mean, run.normalizer.std)
 
 
-def capture_state(run: Run) -> dict[str, Any]:
+def capture_state(run: Run, progress_csv: str = "") -> dict[str, Any]:
     """Everything the next iteration needs, as tensors and plain values (no pickled objects).
+
+    `progress_csv` is the text of progress.csv once this iteration's row is logged: a resume
+    writes it back, so the file holds exactly the rows up to the checkpoint whatever happened
+    to it since (a cut header, a lost middle row, rows logged after the checkpoint).
 
     Copies, not views: the state of iteration k must not change while iteration k + 1 updates
     the parameters in place (Ctrl-C during that update saves this state).
@@ -338,6 +342,7 @@ def capture_state(run: Run) -> dict[str, Any]:
         "wall_time": run.wall_time,
         "nonfinite_batches": run.nonfinite_batches,
         "progress_rows": run.iteration,  # progress.csv holds one row per completed iteration
+        "progress_csv": progress_csv,
         **_learned_state(run),
         "generator": run.generator.get_state(),
         "probe_generator": run.probe_generator.get_state(),
@@ -393,16 +398,42 @@ def _write_config(run_dir: Path, config: Config) -> None:
 
 
 def _resume(run: Run, run_dir: Path) -> list[str]:
-    """Restore the newest readable checkpoint and cut progress.csv back to it; notes to print."""
+    """Restore the newest readable checkpoint and progress.csv as it was then; notes to print."""
     directory = run_dir / "checkpoints"
     checkpoint.remove_stale_temporaries(directory)
+    progress = run_dir / "progress.csv"
     if not checkpoint.list_checkpoints(directory):
+        _restore_progress(progress, "")
         return ["no checkpoint to resume from: starting at iteration 0"]
     state, path, warnings = checkpoint.load_latest(directory)
     restore_state(run, state, path)
     notes = [f"warning: {warning}" for warning in warnings]
     notes.append(f"resuming from {path} (iteration {run.iteration})")
+    if "progress_csv" in state:
+        _restore_progress(progress, str(state["progress_csv"]))
+    else:  # a checkpoint written before progress.csv was kept in it: cut the file back instead
+        notes += _truncate_progress(progress, run.iteration)
     return notes
+
+
+def _restore_progress(progress: Path, text: str) -> None:
+    """Make progress.csv hold exactly `text` (no file for no rows), atomically."""
+    if text:
+        write_text_atomic(progress, text)
+    else:
+        progress.unlink(missing_ok=True)
+
+
+def _truncate_progress(progress: Path, iteration: int) -> list[str]:
+    """Cut progress.csv back to iterations 1..iteration; a warning if rows are missing."""
+    try:
+        kept = truncate_progress(progress, iteration + 1)
+    except ValueError as error:
+        raise checkpoint.CheckpointError(str(error)) from None
+    if kept == list(range(1, iteration + 1)):
+        return []
+    return [f"warning: {progress} should hold the rows of iterations 1..{iteration} (checkpoint), "
+            f"it holds {len(kept)} rows; continuing"]
 
 
 def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bool = True) -> Run:
@@ -430,20 +461,13 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool) -> 
     progress = run_dir / "progress.csv"
     run = build_run(config)
     try:
-        notes = _resume(run, run_dir) if resume else []
-        try:
-            kept = truncate_progress(progress, run.iteration + 1)
-        except ValueError as error:
-            raise checkpoint.CheckpointError(str(error)) from None
-        if kept != list(range(1, run.iteration + 1)):
-            notes.append(f"warning: {progress} should hold the rows of iterations 1..{run.iteration} "
-                         f"(checkpoint), it holds {len(kept)} rows; continuing")
+        notes = _resume(run, run_dir) if resume else _truncate_progress(progress, 0)
         _write_config(run_dir, config)  # on resume only if it changed (e.g. more total_steps)
         logger = RunLogger(run_dir, config.iterations * config.batch_size, run.env_steps, show_progress)
         for note in notes:
             logger.message(note)
         record_holder(run_dir)  # from here on this process writes the run
-        last_state = capture_state(run)
+        last_state = capture_state(run, progress.read_text() if progress.exists() else "")
         saved_iteration = run.iteration if resume else -1
         try:
             while run.iteration < config.iterations:
@@ -452,7 +476,7 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool) -> 
                     logger.message(note)
                 run.notes.clear()
                 logger.log(row)
-                last_state = capture_state(run)
+                last_state = capture_state(run, progress.read_text())
                 if run.iteration % config.checkpoint_every == 0 or run.iteration == config.iterations:
                     checkpoint.save_atomic(last_state, checkpoint.checkpoint_path(checkpoints, run.iteration))
                     checkpoint.prune(checkpoints)

@@ -858,3 +858,28 @@ def test_fuzzed_command_lines_exit_0_or_2_without_traceback(
     if code == 2:
         assert len(captured.err.strip().splitlines()) == 1, captured.err
         assert _tree(workdir) == before and sorted(workdir.iterdir()) == sorted(before), tokens
+
+
+@pytest.mark.parametrize("damage", ["cut_header", "lost_middle_row", "garbled_cell", "deleted"])
+def test_resume_restores_a_damaged_progress_csv_to_the_checkpoints_rows(
+        tmp_path: Path, damage: str) -> None:
+    """The checkpoint keeps progress.csv's text as of its iteration: however the file was damaged
+    since, the resumed run ends with exactly the rows of an uninterrupted one (no silent loss of
+    columns under a cut header, no permanent gap)."""
+    whole, out = tmp_path / "whole", tmp_path / "run"
+    assert cli.main([*_tiny_train(whole), "--steps", "400"]) == 0
+    assert cli.main([*_tiny_train(out), "--steps", "300", "--checkpoint_every", "1"]) == 0
+    progress = out / "progress.csv"
+    lines = progress.read_text().splitlines(keepends=True)
+    if damage == "cut_header":
+        progress.write_text(lines[0][:25])
+    elif damage == "lost_middle_row":
+        progress.write_text("".join(lines[:2] + lines[3:]))
+    elif damage == "garbled_cell":
+        progress.write_text("".join(lines[:2]) + "x" + lines[2][1:] + lines[3])
+    else:
+        progress.unlink()
+    config = json.loads((out / "config.json").read_text())
+    (out / "config.json").write_text(json.dumps({**config, "total_steps": 400}))
+    assert cli.main(["train", "--resume", str(out), "--no-progress"]) == 0
+    assert without_clock(progress_rows(out)) == without_clock(progress_rows(whole))
