@@ -118,8 +118,11 @@ class Config:
     """Sampling worker processes (0: sample in the main process)."""
     envs_per_worker: int = 8
     """Environments each worker steps in lockstep with one batched policy call."""
-    torch_threads: int = 1
-    """Torch threads for the update (results reproduce only at a fixed count)."""
+    torch_threads: int = 2
+    """Torch threads for the update (results reproduce only at a fixed count). 2: the sampling
+    workers idle while the learner updates, and on 2 cores the update at paper scale took 0.21-0.23x
+    the sampling time of its batch with 2 threads vs 0.29-0.36x with 1 (BENCHMARKS.md section 2).
+    Set 1 when two runs share 2 cores (the committed sweeps do)."""
     variance_probe_batches: int = 8
     """Extra mini-batches drawn at one inner step per iteration to measure the variance of the
     svrg and sgd estimates around the full gradient (0 turns the diagnostic off)."""
