@@ -32,11 +32,17 @@ def write_run(root: Path, task: str, preset: str, seed: int, returns: list[float
     (run_dir / "run.json").write_text(json.dumps(meta))
     with open(run_dir / "progress.csv", "w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow(["iteration", "env_steps", "average_return", "variance_ratio"])
+        writer.writerow(["iteration", "env_steps", "average_return", "variance_ratio", "eval_return",
+                         "wall_time"])
+        # Deterministic evaluation after the last iteration only: 1000 + seed. Wall clock:
+        # trpo 2 s per iteration, every other preset 3 s.
+        seconds = 2.0 if preset == "trpo" else 3.0
         for index, value in enumerate(returns):
             ratio = "" if ratios is None else repr(float(ratios[index]))
             cell = "" if math.isnan(value) else repr(float(value))
-            writer.writerow([index + 1, (index + 1) * STEPS_PER_ITERATION, cell, ratio])
+            evaluation = repr(1000.0 + seed) if index == len(returns) - 1 else ""
+            writer.writerow([index + 1, (index + 1) * STEPS_PER_ITERATION, cell, ratio, evaluation,
+                             repr(seconds * (index + 1))])
     return run_dir
 
 
@@ -52,6 +58,8 @@ def write_experiment(root: Path) -> None:
       95 (i = 5) and 125 (i = 6): first >= 200 at i = 10 -> 1000 steps = 50%. Finals 390, 410.
     * svrpo-sgd: 50 throughout -> final 50 [50, 50], never reaches 200: "not reached".
     Walker2d has no TRPO runs: "n/a".
+    Wall clock: trpo's total is 20 x 2 s = 40 s; svrpo reaches TRPO's final at i = 10, at
+    10 x 3 s = 30 s: 75% of TRPO's wall-clock. Final deterministic eval: 1000 and 1001 -> 1000.5.
     """
     i = np.arange(1, ITERATIONS + 1, dtype=float)
     svrpo_seed0 = 20 * i
@@ -118,10 +126,16 @@ def test_report_table_matches_hand_computed_values(
     assert (svrpo["seeds"], svrpo["iterations"], svrpo["env_steps"]) == ("2", "20", "2000")
 
     markdown = (report / "table.md").read_text()
-    assert "| Swimmer-v5 | svrpo | 2 | 2,000 | 400.0 [390.0, 410.0] | 50% (1,000 steps) | 0.5 |" in markdown
-    assert "| Swimmer-v5 | trpo | 2 | 2,000 | 200.0 [195.0, 205.0] | 100% (2,000 steps) |  |" in markdown
-    assert "| Swimmer-v5 | svrpo-sgd | 2 | 2,000 | 50.0 [50.0, 50.0] | not reached | 2 |" in markdown
-    assert "| Walker2d-v5 | svrpo | 2 | 2,000 | 98.0 [97.5, 98.5] | n/a | 0.25 |" in markdown
+    assert ("| Swimmer-v5 | svrpo | 2 | 2,000 | 400.0 [390.0, 410.0] | 1000.5 [1000.0, 1001.0] | "
+            "50% (1,000 steps) | 75% (30 s) | 0.5 |") in markdown
+    assert numbers("Swimmer-v5", "svrpo", "wall_to_trpo_final_s", "percent_of_trpo_wall") == [30.0, 75.0]
+    assert numbers("Swimmer-v5", "trpo", "percent_of_trpo_wall") == [100.0]
+    assert ("| Swimmer-v5 | trpo | 2 | 2,000 | 200.0 [195.0, 205.0] | 1000.5 [1000.0, 1001.0] | "
+            "100% (2,000 steps) | 100% (40 s) |  |") in markdown
+    assert ("| Swimmer-v5 | svrpo-sgd | 2 | 2,000 | 50.0 [50.0, 50.0] | 1000.5 [1000.0, 1001.0] | "
+            "not reached | not reached | 2 |") in markdown
+    assert ("| Walker2d-v5 | svrpo | 2 | 2,000 | 98.0 [97.5, 98.5] | 1000.5 [1000.0, 1001.0] | n/a | n/a "
+            "| 0.25 |") in markdown
 
 
 def test_one_seed_has_no_interval_and_short_runs_compare_on_common_iterations(tmp_path: Path) -> None:

@@ -10,11 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
+from svrpo.experiments.aggregate import aggregate_report, write_aggregate
 from svrpo.experiments.specs import NAMED_EXPERIMENTS, PAPER_TASKS
 from svrpo.experiments.table import summarize, write_csv, write_markdown
 from svrpo.plotting import RunCurve, load_curve, plot_panels
 
-REPORT_FILES = ("returns.png", "variance_ratio.png", "table.md", "table.csv")
+REPORT_FILES = ("returns.png", "variance_ratio.png", "table.md", "table.csv", "aggregate.md",
+                "aggregate.json")
 
 Nested = dict[str, dict[str, list[RunCurve]]]
 
@@ -55,10 +57,15 @@ def write_report(experiment: str, scale: str, run_dirs: Sequence[Path], out_dir:
     if probed:
         written.append(plot_panels(probed, out_dir / "variance_ratio.png", "variance ratio SVRG / SGD",
                                    x_axis="iteration", log_scale=True, title=title, reference=1.0))
-    rows = summarize(returns, variance)
+    evals = _nested([load_curve(d, "eval_return") for d in run_dirs], experiment)
+    wall = _nested([load_curve(d, "wall_time") for d in run_dirs], experiment)
+    rows = summarize(returns, variance, evals, wall)
     written.append(write_markdown(rows, out_dir / "table.md", f"{title}: final return and samples "
                                   "to reach TRPO's final return"))
     written.append(write_csv(rows, out_dir / "table.csv"))
+    summary = aggregate_report(returns)
+    if summary is not None:
+        written += write_aggregate(summary, out_dir, title)
     return written
 
 

@@ -58,6 +58,14 @@ class TableRow:
     """Whether the task has TRPO runs (else the two columns above are "n/a")."""
     median_variance_ratio: float
     """Median over seeds and iterations of SVRG/SGD variance_ratio (NaN for TRPO)."""
+    final_eval_return: float = math.nan
+    """Mean over seeds of each seed's last deterministic evaluation (eval_return; 10 episodes)."""
+    final_eval_low: float = math.nan
+    final_eval_high: float = math.nan
+    wall_to_trpo_final_s: float = math.nan
+    """Seed-mean wall_time at the iteration where S(i) first reaches TRPO's final mean return."""
+    percent_of_trpo_wall: float = math.nan
+    """wall_to_trpo_final_s / TRPO's seed-mean total wall_time x 100 (a researcher pays in hours)."""
 
 
 def final_window(iterations: int) -> int:
@@ -79,18 +87,24 @@ def first_reaching(env_steps: np.ndarray, curve: np.ndarray, target: float) -> f
     return float(env_steps[reached[0]]) if reached.size and math.isfinite(target) else math.nan
 
 
-def summarize(
-    returns: Mapping[str, Mapping[str, Sequence[RunCurve]]],
-    variance: Mapping[str, Mapping[str, Sequence[RunCurve]]] | None = None,
-) -> list[TableRow]:
-    """Table rows for `returns[task][preset]` (curves of average_return, one per seed)."""
+Curves = Mapping[str, Mapping[str, Sequence[RunCurve]]]
+"""task -> preset -> one curve per seed."""
+
+
+def summarize(returns: Curves, variance: Curves | None = None, evals: Curves | None = None,
+              wall: Curves | None = None) -> list[TableRow]:
+    """Table rows for `returns[task][preset]` (curves of average_return, one per seed); `evals`
+    and `wall` (eval_return and wall_time curves of the same runs) add the final deterministic
+    evaluation and the wall-clock time to TRPO's final return."""
     rows = []
     for task, presets in returns.items():
         reference = presets.get(REFERENCE_PRESET)
-        target, reference_steps = math.nan, math.nan
+        target, reference_steps, reference_wall = math.nan, math.nan, math.nan
         if reference:
             steps, curves = smoothed_seeds(reference)
             target, reference_steps = float(_seed_mean(curves)[-1]), float(steps[-1])
+            if wall is not None:
+                reference_wall = float(_wall_curve(wall[task][REFERENCE_PRESET], len(steps))[-1])
         for preset, runs in presets.items():
             steps, curves = smoothed_seeds(runs)
             finals = curves[:, -1]
@@ -101,14 +115,45 @@ def summarize(
                 low, high = float(ci_low[0]), float(ci_high[0])
             reach = first_reaching(steps, _seed_mean(curves), target)
             ratios = [] if variance is None else variance.get(task, {}).get(preset, [])
+            extra = {}
+            if evals is not None:
+                extra.update(_final_eval(evals[task][preset]))
+            if wall is not None:
+                reached = np.flatnonzero(np.nan_to_num(_seed_mean(curves), nan=-np.inf) >= target)
+                if reached.size and math.isfinite(target):
+                    seconds = float(_wall_curve(wall[task][preset], curves.shape[1])[reached[0]])
+                    extra.update(wall_to_trpo_final_s=seconds,
+                                 percent_of_trpo_wall=100.0 * seconds / reference_wall)
             rows.append(TableRow(
                 task=task, preset=preset, seeds=len(runs), iterations=int(curves.shape[1]),
                 env_steps=int(steps[-1]), final_return=mean, final_return_low=low,
                 final_return_high=high, steps_to_trpo_final=reach,
                 percent_of_trpo_steps=100.0 * reach / reference_steps,
-                has_reference=bool(reference), median_variance_ratio=_median_ratio(ratios),
+                has_reference=bool(reference), median_variance_ratio=_median_ratio(ratios), **extra,
             ))
     return rows
+
+
+def _wall_curve(runs: Sequence[RunCurve], length: int) -> np.ndarray:
+    """Seed-mean wall_time per iteration over the first `length` iterations."""
+    return _seed_mean(np.stack([run.values[:length].astype(np.float64) for run in runs]))
+
+
+def _final_eval(runs: Sequence[RunCurve]) -> dict[str, float]:
+    """final_eval_return (and its CI) from each seed's last finite eval_return."""
+    lasts = []
+    for run in runs:
+        finite = run.values[np.isfinite(run.values.astype(np.float64))]
+        if finite.size:
+            lasts.append(float(finite[-1]))
+    if not lasts:
+        return {}
+    values = np.array(lasts)
+    result = {"final_eval_return": float(values.mean())}
+    if values.size >= 2:
+        _, low, high = mean_and_ci(values[:, None])
+        result.update(final_eval_low=float(low[0]), final_eval_high=float(high[0]))
+    return result
 
 
 def _seed_mean(curves: np.ndarray) -> np.ndarray:
@@ -135,27 +180,52 @@ def reach_text(row: TableRow) -> str:
 
 def final_text(row: TableRow) -> str:
     """'1234.5 [1100.2, 1350.0]' (the CI is left out with one seed)."""
-    if math.isnan(row.final_return):
+    return _interval(row.final_return, row.final_return_low, row.final_return_high)
+
+
+def _interval(value: float, low: float, high: float) -> str:
+    if math.isnan(value):
         return "n/a"
-    if math.isnan(row.final_return_low):
-        return f"{row.final_return:.1f}"
-    return f"{row.final_return:.1f} [{row.final_return_low:.1f}, {row.final_return_high:.1f}]"
+    if math.isnan(low):
+        return f"{value:.1f}"
+    return f"{value:.1f} [{low:.1f}, {high:.1f}]"
+
+
+def eval_text(row: TableRow) -> str:
+    """The final deterministic evaluation with its CI."""
+    return _interval(row.final_eval_return, row.final_eval_low, row.final_eval_high)
+
+
+def wall_text(row: TableRow) -> str:
+    """'42% (1,234 s)', 'not reached' or 'n/a' (no TRPO runs, or no wall-clock curves)."""
+    if not row.has_reference:
+        return "n/a"
+    if math.isnan(row.steps_to_trpo_final):
+        return "not reached"
+    if math.isnan(row.percent_of_trpo_wall):
+        return "n/a"
+    return f"{row.percent_of_trpo_wall:.0f}% ({row.wall_to_trpo_final_s:,.0f} s)"
 
 
 def write_markdown(rows: Sequence[TableRow], path: Path, title: str) -> Path:
     """The table as markdown, with the definitions under it."""
     lines = [f"# {title}", "",
-             "| task | preset | seeds | steps | final return (95% CI) | samples to TRPO's final "
-             "return (% of TRPO's) | median variance ratio |",
-             "|---|---|---|---|---|---|---|"]
+             "| task | preset | seeds | steps | final return (95% CI) | final deterministic eval (95% CI) | "
+             "samples to TRPO's final return (% of TRPO's) | wall-clock to it (% of TRPO's) | "
+             "median variance ratio |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         ratio = "" if math.isnan(row.median_variance_ratio) else f"{row.median_variance_ratio:.3g}"
         lines.append(f"| {row.task} | {row.preset} | {row.seeds} | {row.env_steps:,} | "
-                     f"{final_text(row)} | {reach_text(row)} | {ratio} |")
+                     f"{final_text(row)} | {eval_text(row)} | "
+                     f"{reach_text(row)} | {wall_text(row)} | {ratio} |")
     lines += ["", "Final return: per seed, the mean training average_return over the last 10% of "
               "iterations; mean over seeds with a 95% bootstrap CI. Samples to TRPO's final return: "
               "first environment step at which the seed-mean of those smoothed curves reaches TRPO's "
-              "final mean return, as a percentage of TRPO's total steps. Variance ratio: SVRG/SGD "
+              "final mean return, as a percentage of TRPO's total steps; wall-clock to it: the seed-mean "
+              "wall_time at that iteration, as a percentage of TRPO's seed-mean total wall_time (both "
+              "measured the same way, on the same machine). Final deterministic eval: each seed's last "
+              "eval_return (mean action, 10 episodes, after the last iteration). Variance ratio: SVRG/SGD "
               "gradient variance at the probe step (< 1: SVRG reduces variance).", ""]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines))
@@ -168,9 +238,10 @@ def write_csv(rows: Sequence[TableRow], path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="") as handle:
         writer = csv.writer(handle)
-        writer.writerow([*names, "final_return_text", "samples_to_trpo_final_text"])
+        writer.writerow([*names, "final_return_text", "samples_to_trpo_final_text",
+                         "wall_to_trpo_final_text"])
         for row in rows:
             values = asdict(row)
             cells = ["" if isinstance(v, float) and math.isnan(v) else v for v in (values[n] for n in names)]
-            writer.writerow([*cells, final_text(row), reach_text(row)])
+            writer.writerow([*cells, final_text(row), reach_text(row), wall_text(row)])
     return path

@@ -1,0 +1,149 @@
+"""Across-task aggregates of final returns (Agarwal et al. 2021, "Deep RL at the edge of the
+statistical precipice"): the interquartile mean with stratified-bootstrap confidence intervals,
+and the probability of improvement of one method over another.
+
+Inputs are normalised scores, one array per task of shape (runs,) - a run is one seed. Pure
+NumPy/SciPy (the `rliable` package implements the same estimators but pins `arch<8`, which does
+not install beside this project's pinned NumPy and SciPy).
+
+* IQM: the mean of the middle 50% of all runs' scores pooled over tasks (25% trimmed at each
+  end; scipy.stats.trim_mean).
+* Stratified bootstrap: each resample draws, within every task, as many runs as it has, with
+  replacement; the statistic is recomputed on the resample; the CI is the 2.5 and 97.5
+  percentiles of 2,000 resamples.
+* Probability of improvement P(X > Y): per task, the fraction of (x run, y run) pairs with
+  x > y, ties counting one half (the Mann-Whitney U statistic over N_x N_y); averaged over tasks.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.stats import trim_mean
+
+from svrpo.plotting import RunCurve
+
+Scores = Sequence[np.ndarray]
+"""One (runs,) array of normalised scores per task."""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A point estimate with its 95% stratified-bootstrap confidence interval."""
+
+    value: float
+    low: float
+    high: float
+
+
+def normalised(returns: np.ndarray, random_return: float, reference_return: float) -> np.ndarray:
+    """(R - R_random) / (R_reference - R_random): 0 is the initial policy, 1 the reference."""
+    span = reference_return - random_return
+    if not np.isfinite(span) or span == 0:
+        raise ValueError(f"cannot normalise: reference {reference_return} equals random {random_return}")
+    return (np.asarray(returns, dtype=np.float64) - random_return) / span
+
+
+def iqm(scores: Scores) -> float:
+    """Interquartile mean of all runs' scores pooled over tasks."""
+    return float(trim_mean(np.concatenate([np.asarray(s, dtype=np.float64) for s in scores]), 0.25))
+
+
+def probability_of_improvement(x: Scores, y: Scores) -> float:
+    """Mean over tasks of P(x run > y run), ties counting one half."""
+    per_task = []
+    for xs, ys in zip(x, y, strict=True):
+        xs, ys = np.asarray(xs, dtype=np.float64)[:, None], np.asarray(ys, dtype=np.float64)[None, :]
+        per_task.append(float(np.mean((xs > ys) + 0.5 * (xs == ys))))
+    return float(np.mean(per_task))
+
+
+def _resample(scores: Scores, rng: np.random.Generator) -> list[np.ndarray]:
+    """One stratified bootstrap resample: runs drawn with replacement within each task."""
+    return [np.asarray(s)[rng.integers(0, len(s), size=len(s))] for s in scores]
+
+
+def stratified_bootstrap(statistic: Callable[..., float], *groups: Scores, resamples: int = 2000,
+                         seed: int = 0) -> Estimate:
+    """statistic(*groups) with a 95% percentile CI over stratified resamples of every group."""
+    rng = np.random.default_rng(seed)
+    values = [statistic(*(_resample(group, rng) for group in groups)) for _ in range(resamples)]
+    low, high = np.percentile(values, [2.5, 97.5])
+    return Estimate(statistic(*groups), float(low), float(high))
+
+
+REFERENCE = "trpo"
+
+
+def aggregate_report(returns: Mapping[str, Mapping[str, Sequence[RunCurve]]]) -> dict[str, Any] | None:
+    """IQM of normalised final returns per preset and P(preset > trpo), over the tasks where
+    every preset and trpo have runs; None when fewer than one such task or no trpo.
+
+    Normalisation per task: 0 = the initial policy's return (mean over every run of the task of
+    its first iteration's average_return: the same untrained Gaussian policy family for every
+    preset), 1 = TRPO's mean final return (table.py's final-return definition).
+    """
+    from svrpo.experiments.table import smoothed_seeds
+
+    presets = sorted({p for by_preset in returns.values() for p in by_preset},
+                     key=lambda p: (p == REFERENCE, p))
+    tasks = [t for t, by_preset in returns.items() if all(by_preset.get(p) for p in presets)]
+    if REFERENCE not in presets or len(presets) < 2 or not tasks:
+        return None
+    finals: dict[str, list[np.ndarray]] = {p: [] for p in presets}
+    used = []
+    for task in tasks:
+        final = {p: smoothed_seeds(returns[task][p])[1][:, -1] for p in presets}
+        first = np.array([float(run.values[0]) for p in presets for run in returns[task][p]
+                          if len(run.values) and np.isfinite(run.values[0])])
+        random_return = float(first.mean()) if first.size else 0.0
+        reference = float(np.nanmean(final[REFERENCE]))
+        try:
+            scores = {p: normalised(final[p], random_return, reference) for p in presets}
+        except ValueError:
+            continue  # TRPO did not move from the initial policy: nothing to normalise by
+        for p in presets:
+            finals[p].append(scores[p][np.isfinite(scores[p])])
+        used.append({"task": task, "random_return": random_return, "trpo_final_return": reference})
+    if not used:
+        return None
+    report: dict[str, Any] = {"tasks": used, "iqm": {}, "probability_of_improvement_over_trpo": {}}
+    for p in presets:
+        estimate = stratified_bootstrap(iqm, finals[p])
+        report["iqm"][p] = {"value": estimate.value, "ci": [estimate.low, estimate.high],
+                            "runs": int(sum(len(s) for s in finals[p]))}
+        if p != REFERENCE:
+            poi = stratified_bootstrap(probability_of_improvement, finals[p], finals[REFERENCE])
+            report["probability_of_improvement_over_trpo"][p] = {"value": poi.value,
+                                                                 "ci": [poi.low, poi.high]}
+    return report
+
+
+def write_aggregate(report: dict[str, Any], out_dir: Path, title: str) -> list[Path]:
+    """aggregate.json and aggregate.md from aggregate_report's output."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    json_path, md_path = out_dir / "aggregate.json", out_dir / "aggregate.md"
+    json_path.write_text(json.dumps(report, indent=2) + "\n")
+    tasks = ", ".join(t["task"] for t in report["tasks"])
+    lines = [f"# {title}: across {len(report['tasks'])} tasks ({tasks})", "",
+             "| preset | IQM of normalised final return [95% CI] | P(preset > trpo) [95% CI] |",
+             "|---|---|---|"]
+    for preset, iqm_value in report["iqm"].items():
+        poi = report["probability_of_improvement_over_trpo"].get(preset)
+        poi_text = f"{poi['value']:.2f} [{poi['ci'][0]:.2f}, {poi['ci'][1]:.2f}]" if poi else ""
+        lines.append(f"| {preset} | {iqm_value['value']:.2f} [{iqm_value['ci'][0]:.2f}, "
+                     f"{iqm_value['ci'][1]:.2f}] | {poi_text} |")
+    lines += ["", "Normalised final return per task: (R - R0) / (R_trpo - R0), R the run's final return "
+              "(mean training return over the last 10% of iterations), R0 the mean first-iteration "
+              "return over the task's runs (the untrained policy), R_trpo TRPO's mean final return. "
+              "IQM: mean of the middle 50% of all runs pooled over tasks; P(X > Y): per task the share "
+              "of (X run, Y run) pairs with X > Y (ties one half), averaged over tasks; 95% CIs from "
+              "2,000 stratified bootstrap resamples (runs resampled within each task), Agarwal et al. "
+              "2021.", ""]
+    md_path.write_text("\n".join(lines))
+    return [md_path, json_path]

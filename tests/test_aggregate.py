@@ -1,0 +1,84 @@
+"""The across-task estimators against small cases worked by hand."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from svrpo.experiments.aggregate import (
+    aggregate_report,
+    iqm,
+    normalised,
+    probability_of_improvement,
+    stratified_bootstrap,
+)
+from svrpo.plotting import RunCurve
+
+
+def test_normalised_maps_random_to_0_and_reference_to_1() -> None:
+    np.testing.assert_allclose(normalised(np.array([10.0, 110.0, 60.0]), 10.0, 110.0), [0.0, 1.0, 0.5])
+    with pytest.raises(ValueError, match="cannot normalise"):
+        normalised(np.array([1.0]), 5.0, 5.0)
+
+
+def test_iqm_is_the_mean_of_the_middle_half_pooled_over_tasks() -> None:
+    # 8 runs pooled: sorted 0, 1, 2, 3, 4, 5, 6, 100 -> middle half 2, 3, 4, 5 -> 3.5.
+    assert iqm([np.array([0.0, 5.0, 100.0, 3.0]), np.array([1.0, 4.0, 2.0, 6.0])]) == pytest.approx(3.5)
+    # The outlier 100 does not move it, unlike the mean (15.125).
+    assert iqm([np.array([0.0, 5.0, 1000.0, 3.0]), np.array([1.0, 4.0, 2.0, 6.0])]) == pytest.approx(3.5)
+
+
+def test_probability_of_improvement_counts_pairs_and_half_ties_per_task() -> None:
+    # Task 1: x = [3, 1], y = [2, 2]: pairs (3>2, 3>2, 1<2, 1<2) -> 2/4 = 0.5.
+    # Task 2: x = [5], y = [5, 4]: (tie = 0.5, 5>4 = 1) -> 0.75. Mean over tasks: 0.625.
+    x = [np.array([3.0, 1.0]), np.array([5.0])]
+    y = [np.array([2.0, 2.0]), np.array([5.0, 4.0])]
+    assert probability_of_improvement(x, y) == pytest.approx(0.625)
+    assert probability_of_improvement(y, x) == pytest.approx(1 - 0.625)  # P(Y > X) = 1 - P(X > Y)
+    assert probability_of_improvement(x, x) == pytest.approx(0.5)
+
+
+def test_stratified_bootstrap_resamples_within_tasks() -> None:
+    """Every run of a task is equal: any within-task resample gives the same scores, so the
+    interval collapses to the point; pooling across tasks would not (it would mix 0s and 1s)."""
+    scores = [np.zeros(5), np.ones(5)]
+    estimate = stratified_bootstrap(lambda s: float(np.mean(np.concatenate(s))), scores, resamples=200)
+    assert (estimate.value, estimate.low, estimate.high) == (0.5, 0.5, 0.5)
+
+
+def test_stratified_bootstrap_interval_covers_the_point_and_shrinks_with_more_runs() -> None:
+    rng = np.random.default_rng(1)
+    few = [rng.normal(1.0, 1.0, 5) for _ in range(3)]
+    many = [rng.normal(1.0, 1.0, 80) for _ in range(3)]
+    small, large = stratified_bootstrap(iqm, few), stratified_bootstrap(iqm, many)
+    assert small.low <= small.value <= small.high and large.low <= large.value <= large.high
+    assert large.high - large.low < small.high - small.low
+    separated = stratified_bootstrap(probability_of_improvement, [s + 10 for s in few], few)
+    assert (separated.value, separated.low, separated.high) == (1.0, 1.0, 1.0)
+
+
+def _curve(task: str, preset: str, seed: int, final: float) -> RunCurve:
+    """20 iterations: 0 (the untrained policy) for 18, then `final` (the last 10%: 2 iterations)."""
+    values = np.array([0.0] * 18 + [final, final])
+    return RunCurve(Path(f"{task}/{preset}/seed{seed}"), task, preset, seed, np.arange(1, 21) * 100, values)
+
+
+def test_aggregate_report_normalises_by_the_initial_policy_and_trpo() -> None:
+    """Task A: trpo finals 10, 10 and svrpo 20, 30 -> normalised 1, 1 and 2, 3; task B: trpo
+    100, 100 and svrpo 50, 150 -> 1, 1 and 0.5, 1.5. SVRPO's pooled scores 0.5, 1.5, 2, 3: IQM
+    (middle half) = (1.5 + 2) / 2 = 1.75. P(svrpo > trpo): task A 1.0, task B 0.5 -> 0.75."""
+    returns = {
+        "A": {"svrpo": [_curve("A", "svrpo", 0, 20.0), _curve("A", "svrpo", 1, 30.0)],
+              "trpo": [_curve("A", "trpo", 0, 10.0), _curve("A", "trpo", 1, 10.0)]},
+        "B": {"svrpo": [_curve("B", "svrpo", 0, 50.0), _curve("B", "svrpo", 1, 150.0)],
+              "trpo": [_curve("B", "trpo", 0, 100.0), _curve("B", "trpo", 1, 100.0)]},
+    }
+    report = aggregate_report(returns)
+    assert report is not None
+    assert report["iqm"]["svrpo"]["value"] == pytest.approx(1.75)
+    assert report["iqm"]["trpo"]["value"] == pytest.approx(1.0)
+    assert report["probability_of_improvement_over_trpo"]["svrpo"]["value"] == pytest.approx(0.75)
+    assert [t["random_return"] for t in report["tasks"]] == [0.0, 0.0]
+    assert aggregate_report({"A": {"svrpo": returns["A"]["svrpo"]}}) is None  # no TRPO to compare with
