@@ -118,11 +118,11 @@ class Config:
     """Sampling worker processes (0: sample in the main process)."""
     envs_per_worker: int = 8
     """Environments each worker steps in lockstep with one batched policy call."""
-    torch_threads: int = 2
-    """Torch threads for the update (results reproduce only at a fixed count). 2: the sampling
-    workers idle while the learner updates, and on 2 cores the update at paper scale took 0.21-0.23x
-    the sampling time of its batch with 2 threads vs 0.29-0.36x with 1 (BENCHMARKS.md section 2).
-    Set 1 when two runs share 2 cores (the committed sweeps do)."""
+    torch_threads: int = 1
+    """Torch threads for the update (results reproduce only at a fixed count). 1: on an idle 2-core
+    machine 2 threads made the paper-scale update 1.4x faster (BENCHMARKS.md section 7), but with
+    other work on the cores a 2-thread update ran up to 10x slower (threads waiting on each other),
+    so 2 is worth setting only on an otherwise idle machine."""
     variance_probe_batches: int = 8
     """Extra mini-batches drawn at one inner step per iteration to measure the variance of the
     svrg and sgd estimates around the full gradient (0 turns the diagnostic off)."""

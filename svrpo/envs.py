@@ -158,44 +158,69 @@ def scale_action(action: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.nd
 
 
 def get_env_state(env: gym.Env) -> dict[str, Any]:
-    """Everything a MuJoCo env needs to continue bit-exactly, as plain numpy/python values.
+    """Everything an env needs to continue bit-exactly, as plain numpy/python values.
 
-    That is the MuJoCo integration state, the env's reset generator, and the time-limit counter.
-    Observations and episode bookkeeping are the caller's business.
+    MuJoCo envs: the MuJoCo integration state. Any other env (classic control, a user's own):
+    its unwrapped object's numeric, boolean, string and None attributes (`state`, `last_u`, ...),
+    which is all of the dynamic state of Gymnasium's classic-control tasks; an env that keeps its
+    state in other objects resumes from these attributes only. Both: the env's reset generator
+    and the time-limit counter. Observations and episode bookkeeping are the caller's business.
     """
-    model, data = _mujoco_handles(env)
-    physics = np.empty(mujoco.mj_stateSize(model, _PHYSICS_STATE), dtype=np.float64)
-    mujoco.mj_getState(model, data, physics, _PHYSICS_STATE)
-    return {
-        "physics": physics,
-        "np_random": env.unwrapped.np_random.bit_generator.state,
+    base: Any = env.unwrapped
+    state: dict[str, Any] = {
+        "np_random": base.np_random.bit_generator.state,
         "elapsed_steps": _elapsed_steps(env),
     }
+    if _is_mujoco(base):
+        model, data = base.model, base.data
+        physics = np.empty(mujoco.mj_stateSize(model, _PHYSICS_STATE), dtype=np.float64)
+        mujoco.mj_getState(model, data, physics, _PHYSICS_STATE)
+        state["physics"] = physics
+    else:
+        state["attributes"] = {name: value.copy() if isinstance(value, np.ndarray) else value
+                               for name, value in vars(base).items()
+                               if _plain(value) and name != "_np_random"}
+    return state
 
 
 def set_env_state(env: gym.Env, state: dict[str, Any]) -> None:
     """Restore a state taken by get_env_state on an env of the same id."""
-    model, data = _mujoco_handles(env)
-    physics = np.asarray(state["physics"], dtype=np.float64)
-    expected = mujoco.mj_stateSize(model, _PHYSICS_STATE)
-    if physics.shape != (expected,):
-        raise ValueError(f"physics state has shape {physics.shape}, this env needs ({expected},)")
-    mujoco.mj_setState(model, data, physics, _PHYSICS_STATE)
-    # Derived quantities (positions of bodies, contacts, cfrc_ext) are recomputed as after a step,
-    # so anything the env reads before its next mj_step matches the original run.
-    mujoco.mj_forward(model, data)
-    mujoco.mj_rnePostConstraint(model, data)
-    env.unwrapped.np_random.bit_generator.state = state["np_random"]
+    base = env.unwrapped
+    if "physics" in state:
+        model, data = _mujoco_handles(env)
+        physics = np.asarray(state["physics"], dtype=np.float64)
+        expected = mujoco.mj_stateSize(model, _PHYSICS_STATE)
+        if physics.shape != (expected,):
+            raise ValueError(f"physics state has shape {physics.shape}, this env needs ({expected},)")
+        mujoco.mj_setState(model, data, physics, _PHYSICS_STATE)
+        # Derived quantities (positions of bodies, contacts, cfrc_ext) are recomputed as after a
+        # step, so anything the env reads before its next mj_step matches the original run.
+        mujoco.mj_forward(model, data)
+        mujoco.mj_rnePostConstraint(model, data)
+    else:
+        for name, value in state["attributes"].items():
+            setattr(base, name, value.copy() if isinstance(value, np.ndarray) else value)
+    base.np_random.bit_generator.state = state["np_random"]
     if state["elapsed_steps"] is not None:
         env.set_wrapper_attr("_elapsed_steps", int(state["elapsed_steps"]), force=False)
+
+
+def _plain(value: Any) -> bool:
+    """A value get_env_state keeps: a number, bool, string, None or numeric/boolean array."""
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "biuf"
+    return value is None or isinstance(value, (bool, int, float, str, np.generic))
+
+
+def _is_mujoco(base: Any) -> bool:
+    return isinstance(getattr(base, "model", None), mujoco.MjModel) and hasattr(base, "data")
 
 
 def is_mujoco_task(env_id: str) -> bool:
     """Whether env_id's environment is a MuJoCo simulation (has MjModel and MjData)."""
     env = make_env(env_id)
     try:
-        base = env.unwrapped
-        return isinstance(getattr(base, "model", None), mujoco.MjModel)
+        return _is_mujoco(env.unwrapped)
     finally:
         env.close()
 

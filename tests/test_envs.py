@@ -154,3 +154,29 @@ def test_env_state_round_trip_is_bit_exact() -> None:
     assert any(isinstance(item, list) for item in expected), "the run should include a reset"
     source.close()
     target.close()
+
+
+@pytest.mark.parametrize("env_id", ["Pendulum-v1", "MountainCarContinuous-v0"])
+def test_non_mujoco_box_task_state_round_trip_is_bit_exact(env_id: str) -> None:
+    """Classic-control tasks keep their dynamic state in plain attributes (`state`, `last_u`):
+    those and the reset generator are saved, so a restored copy steps identically."""
+    source = make_env(env_id)
+    source.reset(seed=5)
+    rng = np.random.default_rng(0)
+    for _ in range(7):
+        source.step(source.action_space.sample())
+    saved = get_env_state(source)
+    actions = [rng.uniform(-1, 1, source.action_space.shape) for _ in range(30)]
+    expected = [source.step(a)[:3] for a in actions] + [source.reset()[0]]
+    target = make_env(env_id)
+    target.reset(seed=99)
+    set_env_state(target, saved)
+    got = [target.step(a)[:3] for a in actions] + [target.reset()[0]]
+    for left, right in zip(expected, got, strict=True):
+        if isinstance(left, tuple):
+            np.testing.assert_array_equal(left[0], right[0])
+            assert left[1:] == right[1:]
+        else:
+            np.testing.assert_array_equal(left, right)
+    source.close()
+    target.close()

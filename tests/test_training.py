@@ -170,3 +170,16 @@ def test_inner_stop_rule_decides_how_many_inner_steps_run() -> None:
     assert stopped.backtracks < every.backtracks
     # Every accepted step improves the full-batch surrogate, so `all` can only add to it.
     assert 0 < stopped.surrogate_improvement <= every.surrogate_improvement + 1e-6
+
+
+@pytest.mark.parametrize("env_id", ["Pendulum-v1", "MountainCarContinuous-v0"])
+def test_any_box_task_trains_and_resumes_exactly(env_id: str, tmp_path: Path) -> None:
+    """Not only MuJoCo: any Gymnasium task with Box spaces trains (the generic step and state
+    path), and a run stopped after iteration 2 and resumed ends as an unbroken one."""
+    full = _small("svrpo", env_id, total_steps=4000, num_workers=0, eval_every=2, eval_episodes=1)
+    train(full, tmp_path / "full", show_progress=False)
+    train(full.replace(total_steps=2000), tmp_path / "part", show_progress=False)
+    train(full, tmp_path / "part", resume=True, show_progress=False)
+    rows = progress_rows(tmp_path / "full")
+    assert len(rows) == 4 and all(row["mean_kl"] for row in rows)
+    assert without_clock(progress_rows(tmp_path / "part")) == without_clock(rows)
