@@ -92,5 +92,6 @@ def test_bench_main_runs_and_writes_json(tmp_path: Path) -> None:
     assert main(["--steps", "400", "--repeats", "1", "--batch-size", "1000", "--out", str(out)]) == 0
     report = json.loads(out.read_text())
     assert report["sampling"]["replay_bit_exact"]
-    assert report["update"]["svrpo"]["inner_steps"] == 50
+    assert report["update"]["svrpo"]["max_inner_steps"] == 50  # J; the loop may stop earlier
+    assert 1 <= report["update"]["svrpo"]["inner_steps"] <= 50
     assert report["update"]["trpo"]["inner_steps"] == 1

@@ -64,6 +64,8 @@ def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool 
     resumes from its latest one; the rest start from scratch, except (with `reuse`) a new run
     whose exact config already finished under another experiment of `root`: that run is copied.
     """
+    if root.exists() and not root.is_dir():
+        raise SpecError(f"the sweep root {root} is not a directory")
     jobs = plan(spec, root)
     for task in spec.tasks:
         env_info(task)  # EnvError for an unknown task, before anything is written
@@ -88,8 +90,6 @@ def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool 
     if not todo:
         _say("nothing to run")
         return summary
-    if root.exists() and not root.is_dir():
-        raise SpecError(f"the sweep root {root} is not a directory")
     try:
         lock = exclusive_writer(root, "sweep root")  # one sweep at a time per root
         lock.__enter__()

@@ -1,0 +1,62 @@
+"""Copy the finished runs of a sweep root into a small archive that can be committed.
+
+A finished run keeps config.json, run.json, progress.csv, train.log and its final checkpoint
+(what `svrpo plot` reads and what `svrpo sweep` needs to see the run as done); TensorBoard events
+and older checkpoints are left out. Copying the archive back into a sweep root
+(`cp -r ARCHIVE/. ROOT/`) lets a later `svrpo sweep` on a fresh machine skip those runs.
+
+    python benchmarks/archive_runs.py /work/runs results/runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
+
+from svrpo import checkpoint  # noqa: E402
+from svrpo.config import Config  # noqa: E402
+from svrpo.experiments.jobs import completed_iterations  # noqa: E402
+
+KEPT = ("config.json", "run.json", "progress.csv", "train.log")
+
+
+def finished_runs(root: Path) -> list[Path]:
+    """Run directories under root whose progress.csv and final checkpoint are complete."""
+    runs = []
+    for config_path in sorted(root.rglob("config.json")):
+        run_dir = config_path.parent
+        try:
+            config = Config.from_json(config_path.read_text())
+        except ValueError:
+            continue
+        final = checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations)
+        if final.is_file() and completed_iterations(run_dir) >= config.iterations:
+            runs.append(run_dir)
+    return runs
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("root", type=Path)
+    parser.add_argument("archive", type=Path)
+    args = parser.parse_args()
+    copied = 0
+    for run_dir in finished_runs(args.root):
+        target = args.archive / run_dir.relative_to(args.root)
+        config = Config.from_json((run_dir / "config.json").read_text())
+        final = checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations)
+        (target / "checkpoints").mkdir(parents=True, exist_ok=True)
+        for name in KEPT:
+            if (run_dir / name).is_file():
+                shutil.copy2(run_dir / name, target / name)
+        shutil.copy2(final, target / "checkpoints" / final.name)
+        copied += 1
+    print(f"archived {copied} finished runs of {args.root} in {args.archive}")
+
+
+if __name__ == "__main__":
+    main()
