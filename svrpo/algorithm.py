@@ -13,6 +13,7 @@ the last completed iteration is checkpointed.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 import time
@@ -52,6 +53,10 @@ _T = TypeVar("_T")
 
 class TrainingError(RuntimeError):
     """The run cannot go on (e.g. sampling workers keep dying); its last iteration is checkpointed."""
+
+
+class WriteFailedError(TrainingError):
+    """A file of the run could not be written (disk full, ...); what was written before is intact."""
 
 
 @dataclass
@@ -481,6 +486,13 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool) -> 
                     checkpoint.save_atomic(last_state, checkpoint.checkpoint_path(checkpoints, run.iteration))
                     checkpoint.prune(checkpoints)
                     saved_iteration = run.iteration
+        except OSError as error:
+            # A write failed (disk full, quota, file-size limit): retrying the checkpoint would fail
+            # the same way, and everything written before the failed write is intact.
+            kept = f"the checkpoint of iteration {saved_iteration} is intact" if saved_iteration > 0 \
+                else "no checkpoint was written yet"
+            raise WriteFailedError(f"cannot write {error.filename or run_dir}: {error.strerror or error}; "
+                                   f"stopped, {kept}; free space, then resume") from None
         except BaseException as error:
             for note in run.notes:
                 logger.message(note)
@@ -498,7 +510,8 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool) -> 
                            else f"{stopped} before the first iteration ended: nothing to checkpoint")
             raise
         finally:
-            logger.close()
+            with contextlib.suppress(OSError):  # the disk that just failed a write may fail its flush too
+                logger.close()
     finally:
         run.sampler.close()
     return run

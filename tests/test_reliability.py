@@ -883,3 +883,35 @@ def test_resume_restores_a_damaged_progress_csv_to_the_checkpoints_rows(
     (out / "config.json").write_text(json.dumps({**config, "total_steps": 400}))
     assert cli.main(["train", "--resume", str(out), "--no-progress"]) == 0
     assert without_clock(progress_rows(out)) == without_clock(progress_rows(whole))
+
+
+def test_a_write_that_fails_for_lack_of_space_loses_nothing_and_the_run_resumes_exactly(
+        tmp_path: Path) -> None:
+    """A file-size limit (RLIMIT_FSIZE: what a full disk looks like to a write) hit while writing
+    a checkpoint: one error line, exit code 1, the previous checkpoint intact, and a resume
+    without the limit ends with exactly the rows of an undisturbed run."""
+    import resource
+
+    reference, out = tmp_path / "reference", tmp_path / "run"
+    command = [sys.executable, "-m", "svrpo.cli", "train", "--preset", "trpo", "--env", ENV,
+               "--steps", "1000", "--batch_size", "100", "--num_workers", "0", "--envs_per_worker", "1",
+               "--eval_every", "0", "--checkpoint_every", "2", "--no-progress", "--out"]
+    subprocess.run([*command, str(reference)], check=True, capture_output=True)
+    sizes = {i: checkpoint.checkpoint_path(reference / "checkpoints", i).stat().st_size for i in (6, 8)}
+    assert sizes[6] < sizes[8]  # the checkpoint grows (it keeps progress.csv's text)
+    limit = (sizes[6] + sizes[8]) // 2  # checkpoint 6 fits, checkpoint 8 does not
+
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    failed = subprocess.run([*command, str(out)], preexec_fn=cap, capture_output=True, text=True)
+    assert failed.returncode == 1
+    lines = failed.stderr.strip().splitlines()
+    assert "Traceback" not in failed.stderr and len(lines) == 2, lines  # the start line, the error
+    assert "File too large" in lines[1] and "checkpoint of iteration 6 is intact" in lines[1]
+    assert checkpoint.load(checkpoint.checkpoint_path(out / "checkpoints", 6))["iteration"] == 6
+    resumed = subprocess.run([sys.executable, "-m", "svrpo.cli", "train", "--resume", str(out),
+                              "--no-progress"], capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr
+    assert without_clock(progress_rows(out)) == without_clock(progress_rows(reference))
+    assert not list((out / "checkpoints").glob("*.tmp"))
