@@ -1,6 +1,31 @@
-"""svrpo: stochastic variance-reduced trust-region policy optimisation (Xu, Liu, Peng) and TRPO."""
+"""svrpo: stochastic variance-reduced trust-region policy optimisation (Xu, Liu, Peng) and TRPO.
 
-from svrpo.config import PRESET_NAMES, Config, ConfigError, make_preset
+    import svrpo
+    config = svrpo.make_preset("svrpo", "Hopper-v5", "laptop").replace(total_steps=200_000)
+    svrpo.train(config, "runs/hopper")
+    policy = svrpo.load_policy("runs/hopper")
+    action = policy.act(observation, deterministic=True)
 
-__all__ = ["PRESET_NAMES", "Config", "ConfigError", "make_preset", "__version__"]
+`train` and `load_policy` import torch when first used, not at `import svrpo` (the sampling
+workers import this package and must stay torch-free).
+"""
+
+from typing import Any
+
+from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, field_docs, make_preset
+
+__all__ = ["PRESET_NAMES", "SCALES", "Config", "ConfigError", "field_docs", "load_policy", "make_preset",
+           "train", "__version__"]
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> Any:
+    if name == "train":
+        from svrpo.api import train
+
+        return train
+    if name == "load_policy":
+        from svrpo.evaluation import load_policy
+
+        return load_policy
+    raise AttributeError(f"module 'svrpo' has no attribute {name!r}")

@@ -18,7 +18,7 @@ from svrpo.arguments import CommandLineError, OneLineParser
 from svrpo.atomic import write_text_atomic
 from svrpo.checkpoint import CheckpointError
 from svrpo.checkpoint import one_line as checkpoint_one_line
-from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, make_preset
+from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, field_names, make_preset
 from svrpo.envs import EnvError, check_import_allowed, env_info
 from svrpo.evaluation import EvaluationError
 from svrpo.experiments.specs import SpecError
@@ -356,6 +356,21 @@ def _check_writable(path: Path, flag: str) -> None:
         raise UsageError(f"{flag} {path} is not writable")
 
 
+def _fields(args: argparse.Namespace, extra: list[str]) -> int:
+    """Every config field with its type, the preset's value and its docstring."""
+    if extra:
+        raise UsageError(f"unexpected arguments {' '.join(extra)}")
+    from svrpo.config import _HINTS, field_docs
+
+    config = make_preset(args.preset, args.env, args.scale)
+    docs = field_docs()
+    for name in field_names():
+        hint = getattr(_HINTS[name], "__name__", str(_HINTS[name])).replace("typing.", "")
+        print(f"--{name} ({hint}; {args.preset} at {args.scale} scale: {getattr(config, name)!r})")
+        print(f"    {docs.get(name, '')}")
+    return 0
+
+
 def _bench(args: argparse.Namespace, extra: list[str]) -> int:
     from svrpo import bench
 
@@ -372,7 +387,8 @@ def make_parser() -> argparse.ArgumentParser:
         allow_abbrev=False,
         help="train one run",
         description="Train one run. Any config field can be overridden as --field value "
-        "(e.g. --max_kl 0.02 --hidden_sizes 32,32); see svrpo/config.py for the fields.",
+        "(e.g. --max_kl 0.02 --hidden_sizes 32,32); `svrpo fields` lists every field with its "
+        "meaning and the preset's value.",
     )
     train.add_argument("--preset", default=None, choices=PRESET_NAMES, help="default svrpo")
     train.add_argument("--env", default=None, help="Gymnasium task id (Box spaces); default Hopper-v5")
@@ -456,6 +472,13 @@ def make_parser() -> argparse.ArgumentParser:
     bench = commands.add_parser("bench", add_help=False,
                                 help="quick sampling-vs-physics and update-cost check of this machine")
     bench.set_defaults(handler=_bench)
+    fields = commands.add_parser("fields", help="list every config field with its meaning",
+                                 description="Every config field (set any of them as --field value), "
+                                 "with its type, a preset's value and its docstring.")
+    fields.add_argument("--preset", default="svrpo", choices=PRESET_NAMES)
+    fields.add_argument("--env", default="Hopper-v5")
+    fields.add_argument("--scale", default="laptop", choices=SCALES)
+    fields.set_defaults(handler=_fields)
     return parser
 
 

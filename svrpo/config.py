@@ -176,6 +176,21 @@ def field_names() -> list[str]:
     return [f.name for f in dataclasses.fields(Config)]
 
 
+def field_docs() -> dict[str, str]:
+    """Each Config field's docstring (the string under it in this file), by field name."""
+    import ast
+    import inspect
+
+    tree = ast.parse(inspect.getsource(Config))
+    body = next(node for node in tree.body if isinstance(node, ast.ClassDef)).body
+    docs: dict[str, str] = {}
+    for node, following in zip(body, body[1:], strict=False):
+        if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+                and isinstance(following, ast.Expr) and isinstance(following.value, ast.Constant)):
+            docs[node.target.id] = " ".join(str(following.value.value).split())
+    return docs
+
+
 def coerce_field(name: str, value: Any) -> Any:
     """Convert a JSON value or a command-line string to the field's type, or raise ConfigError."""
     if name not in _HINTS:

@@ -46,6 +46,24 @@ class LoadedPolicy:
     checkpoint: Path
     iteration: int
     env_steps: int
+    action_low: np.ndarray
+    """(act_dim,) lower bounds of the task's action box."""
+    action_high: np.ndarray
+
+    def act(self, observation: np.ndarray, deterministic: bool = True,
+            rng: np.random.Generator | None = None) -> np.ndarray:
+        """The control to send to the env for one observation (or a (B, obs_dim) batch).
+
+        The Gaussian mean (deterministic) or a sample from the policy (rng, default a fresh
+        generator), clipped to [-1, 1] and rescaled to the action box, exactly as in training.
+        """
+        batch = np.atleast_2d(np.asarray(observation, dtype=np.float64))
+        if deterministic:
+            raw = self.snapshot.mean_action(batch)
+        else:
+            raw = self.snapshot.sample_action(batch, rng if rng is not None else np.random.default_rng())
+        control = scale_action(raw, self.action_low, self.action_high)
+        return control[0] if np.ndim(observation) == 1 else control
 
 
 @dataclass(frozen=True)
@@ -83,7 +101,7 @@ def find_checkpoint(path: Path) -> Path:
     return found[0]
 
 
-def load_policy(path: Path, allow_import: Collection[str] = ()) -> LoadedPolicy:
+def load_policy(path: str | os.PathLike[str], allow_import: Collection[str] = ()) -> LoadedPolicy:
     """Rebuild the policy and normaliser of a run directory's latest checkpoint (or a .pt file).
 
     The checkpoint is read with weights_only=True (svrpo.checkpoint.load): no pickled code runs.
@@ -95,6 +113,7 @@ def load_policy(path: Path, allow_import: Collection[str] = ()) -> LoadedPolicy:
     from svrpo.normalization import RunningMeanStd
     from svrpo.policy import GaussianMlpPolicy
 
+    path = Path(path)
     if path.is_dir():  # a run directory: its newest readable checkpoint, as `train --resume`
         if not checkpoint.list_checkpoints(path / "checkpoints"):
             find_checkpoint(path)  # raises the one-line "no checkpoints" error
@@ -119,7 +138,7 @@ def load_policy(path: Path, allow_import: Collection[str] = ()) -> LoadedPolicy:
     except (KeyError, RuntimeError, ValueError, TypeError) as error:
         raise checkpoint.CheckpointError(f"{source} does not hold a usable policy: {error}") from None
     return LoadedPolicy(config, policy.snapshot(obs_mean, obs_std), source, int(state["iteration"]),
-                        int(state["env_steps"]))
+                        int(state["env_steps"]), info.action_low, info.action_high)
 
 
 OnStep = Callable[[gym.Env, int], None]
