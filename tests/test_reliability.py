@@ -915,3 +915,35 @@ def test_a_write_that_fails_for_lack_of_space_loses_nothing_and_the_run_resumes_
     assert resumed.returncode == 0, resumed.stderr
     assert without_clock(progress_rows(out)) == without_clock(progress_rows(reference))
     assert not list((out / "checkpoints").glob("*.tmp"))
+
+
+def test_a_progress_write_that_fails_keeps_the_checkpoint_and_rows_before_it(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The disk fills up while progress.csv gets its row (a row half written, then ENOSPC):
+    the run stops with WriteFailedError naming the intact checkpoint, and a resume ends with
+    exactly the rows of an undisturbed run."""
+    import errno
+
+    from svrpo.logging import RunLogger
+
+    config = make_preset("trpo", ENV, "laptop").replace(total_steps=1000, batch_size=100, num_workers=0,
+                                                         envs_per_worker=1, eval_every=0, checkpoint_every=2)
+    train(config, tmp_path / "reference", show_progress=False)
+    original = RunLogger.log
+
+    def full_disk_at_iteration_5(self: RunLogger, row: dict[str, Any]) -> None:
+        if row["iteration"] == 5:
+            with open(self.csv_path, "a") as handle:
+                handle.write("5,500,12")  # part of the row reached the disk
+            raise OSError(errno.ENOSPC, "No space left on device", str(self.csv_path))
+        original(self, row)
+
+    monkeypatch.setattr(RunLogger, "log", full_disk_at_iteration_5)
+    out = tmp_path / "run"
+    with pytest.raises(algorithm.WriteFailedError, match="No space left on device.*iteration 4 is intact"):
+        train(config, out, show_progress=False)
+    assert checkpoint.load(checkpoint.checkpoint_path(out / "checkpoints", 4))["iteration"] == 4
+    assert [row["iteration"] for row in progress_rows(out, complete_only=True)] == ["1", "2", "3", "4"]
+    monkeypatch.setattr(RunLogger, "log", original)
+    train(config, out, resume=True, show_progress=False)
+    assert without_clock(progress_rows(out)) == without_clock(progress_rows(tmp_path / "reference"))
