@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT))  # run from a checkout, uninstalled
 
 from svrpo import checkpoint  # noqa: E402
 from svrpo.bench import machine_info  # noqa: E402
-from tests.helpers import progress_rows, without_clock  # noqa: E402
+from tests.helpers import RAY_SPEC, progress_rows, without_clock  # noqa: E402
 
 ITERATIONS = 20
 TRAIN = [sys.executable, "-m", "svrpo.cli", "train", "--preset", "svrpo", "--env", "InvertedPendulum-v5",
@@ -121,8 +121,7 @@ def node_loss(work: Path, moments: list[int]) -> list[dict[str, Any]]:
     from svrpo.experiments.ray_backend import RayBackend
 
     spec_path = work / "cluster.yaml"
-    spec_path.write_text((ROOT / "tests" / "test_ray_cluster.py").read_text().split('SPEC = """\\\n')[1]
-                         .split('"""')[0])
+    spec_path.write_text(RAY_SPEC.format(name="cluster", presets="[svrpo, trpo]", steps=15000))
     spec = load_spec(str(spec_path))
     local = work / "node_loss_local"
     run_sweep(spec, local, LocalBackend())

@@ -6,6 +6,7 @@ Bad input: one line on stderr, exit code 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -148,15 +149,12 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
               f"iterations = {config.iterations * config.batch_size} steps", file=sys.stderr)
     if args.resume is None:
         _check_new_out(run_dir)
-    try:
-        writer = exclusive_writer(run_dir)
-        writer.__enter__()  # before anything is read for resume or written: one writer per run
-    except OSError as error:  # under a file, unwritable, ...
-        raise UsageError(f"cannot create --out {run_dir}: {error.strerror or error}") from None
-    try:
+    with contextlib.ExitStack() as held:
+        try:  # before anything is read for resume or written: one writer per run
+            held.enter_context(exclusive_writer(run_dir))
+        except OSError as error:  # under a file, unwritable, ...
+            raise UsageError(f"cannot create --out {run_dir}: {error.strerror or error}") from None
         return _train_locked(args, config, preset, run_dir)
-    finally:
-        writer.__exit__(None, None, None)
 
 
 def _train_locked(args: argparse.Namespace, config: Config, preset: str, run_dir: Path) -> int:

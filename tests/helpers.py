@@ -42,3 +42,21 @@ def nested_equal(a: Any, b: Any) -> bool:
     if isinstance(a, np.ndarray):
         return isinstance(b, np.ndarray) and a.dtype == b.dtype and np.array_equal(a, b)
     return bool(a == b)
+
+
+RAY_SPEC = """\
+name: {name}
+tasks: [InvertedPendulum-v5]
+presets: {presets}
+seeds: 1
+scale: laptop
+overrides:
+  batch_size: 1000
+  total_steps: {steps}
+  minibatch_size: 250
+  num_workers: 1
+  envs_per_worker: 2
+  eval_every: 0
+  checkpoint_every: 1
+"""
+"""A tiny sweep for the Ray tests (and benchmarks/fault_soak.py): one 1-CPU run per preset."""

@@ -21,23 +21,8 @@ from svrpo.cli import main
 from svrpo.experiments import LocalBackend, load_spec, run_sweep
 from svrpo.experiments.ray_backend import RayBackend
 from svrpo.experiments.ray_task import LOCK_NAME, StorageError, run_task
-from tests.helpers import progress_rows, without_clock
+from tests.helpers import RAY_SPEC, progress_rows, without_clock
 
-SPEC = """\
-name: tiny
-tasks: [InvertedPendulum-v5]
-presets: {presets}
-seeds: 1
-scale: laptop
-overrides:
-  batch_size: 1000
-  total_steps: {steps}
-  minibatch_size: 250
-  num_workers: 1
-  envs_per_worker: 2
-  eval_every: 0
-  checkpoint_every: 1
-"""
 START = re.compile(r"ray task pid (\d+) on .*, training pid (\d+)")
 
 
@@ -68,7 +53,7 @@ def keep_sigterm() -> Iterator[None]:
 
 def _spec(tmp_path: Path, presets: str, steps: int) -> Path:
     path = tmp_path / "tiny.yaml"
-    path.write_text(SPEC.format(presets=presets, steps=steps))
+    path.write_text(RAY_SPEC.format(name="tiny", presets=presets, steps=steps))
     return path
 
 

@@ -16,23 +16,9 @@ import pytest
 
 from svrpo.experiments import LocalBackend, load_spec, run_sweep
 from svrpo.experiments.ray_backend import RayBackend
-from tests.helpers import progress_rows, without_clock
+from tests.helpers import RAY_SPEC, progress_rows, without_clock
 
-SPEC = """\
-name: cluster
-tasks: [InvertedPendulum-v5]
-presets: [svrpo, trpo]
-seeds: 1
-scale: laptop
-overrides:
-  batch_size: 1000
-  total_steps: 15000
-  minibatch_size: 250
-  num_workers: 1
-  envs_per_worker: 2
-  eval_every: 0
-  checkpoint_every: 1
-"""
+SPEC = RAY_SPEC.format(name="cluster", presets="[svrpo, trpo]", steps=15000)
 START = re.compile(r"ray task pid (\d+) on .*, training pid (\d+)")
 
 

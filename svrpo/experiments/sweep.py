@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import sys
 from collections import Counter
@@ -90,16 +91,13 @@ def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool 
     if not todo:
         _say("nothing to run")
         return summary
-    try:
-        lock = exclusive_writer(root, "sweep root")  # one sweep at a time per root
-        lock.__enter__()
-    except OSError as error:
-        raise SpecError(f"cannot write the sweep root {root}: {error.strerror or error}") from None
-    try:
+    with contextlib.ExitStack() as held:
+        try:  # one sweep at a time per root
+            held.enter_context(exclusive_writer(root, "sweep root"))
+        except OSError as error:
+            raise SpecError(f"cannot write the sweep root {root}: {error.strerror or error}") from None
         record_holder(root)
         return _run_todo(todo, jobs, copies, counts, summary, root, backend)
-    finally:
-        lock.__exit__(None, None, None)
 
 
 def _run_todo(todo: list[RunJob], jobs: list[RunJob], copies: dict[Path, Path], counts: Counter[RunStatus],
