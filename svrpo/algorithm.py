@@ -466,7 +466,9 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool) -> 
     progress = run_dir / "progress.csv"
     run = build_run(config)
     try:
-        notes = _resume(run, run_dir) if resume else _truncate_progress(progress, 0)
+        if not resume:
+            _restore_progress(progress, "")  # a fresh start: no rows of an earlier run
+        notes = _resume(run, run_dir) if resume else []
         _write_config(run_dir, config)  # on resume only if it changed (e.g. more total_steps)
         logger = RunLogger(run_dir, config.iterations * config.batch_size, run.env_steps, show_progress)
         for note in notes:
