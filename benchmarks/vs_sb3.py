@@ -7,6 +7,13 @@ Run it with a Python that has sb3-contrib (kept out of the project's own environ
     /work/sb3venv/bin/pip install -e .
     /work/sb3venv/bin/python benchmarks/vs_sb3.py --envs Hopper-v5 HalfCheetah-v5 --seeds 0 1 2
 
+The outside anchor for RESULTS.md (sb3-contrib alone, 1M steps, one torch thread, the same
+evaluation protocol as our runs: 10 deterministic episodes at the end, observation statistics
+frozen):
+
+    /work/sb3venv/bin/python benchmarks/vs_sb3.py --libraries sb3-contrib --steps 1000000 \
+        --torch-threads 1 --envs Hopper-v5 Walker2d-v5 --out benchmarks/results/sb3_anchor_1M.json
+
 Each (library, task, seed) trains in its own subprocess, ours and theirs alternating seed by
 seed so that a change in machine load hits both. Our TRPO is configured as sb3-contrib's
 defaults (see OUR_CONFIG); the differences that remain are listed in BENCHMARKS.md.
@@ -28,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 ITERATIONS = 98
-"""Iterations of 2048 steps: 200,704 env steps, the same count for both libraries."""
+"""Default budget: iterations of 2048 steps, 200,704 env steps, the same count for both libraries."""
 EVAL_EPISODES = 10
 
 # sb3-contrib TRPO defaults (v2.x) expressed in our config fields.
@@ -42,7 +49,7 @@ OUR_CONFIG: dict[str, Any] = {
 }
 
 
-def run_ours(env_id: str, seed: int) -> dict[str, Any]:
+def run_ours(env_id: str, seed: int, iterations: int) -> dict[str, Any]:
     """Train our `trpo` preset configured like sb3-contrib; return time and returns."""
     import csv
 
@@ -52,8 +59,8 @@ def run_ours(env_id: str, seed: int) -> dict[str, Any]:
     from svrpo.config import make_preset
 
     config = make_preset("trpo", env_id, "laptop").replace(
-        **OUR_CONFIG, seed=seed, total_steps=ITERATIONS * 2048, eval_every=ITERATIONS,
-        eval_episodes=EVAL_EPISODES, checkpoint_every=ITERATIONS,
+        **OUR_CONFIG, seed=seed, total_steps=iterations * 2048, eval_every=iterations,
+        eval_episodes=EVAL_EPISODES, checkpoint_every=iterations,
     )
     with tempfile.TemporaryDirectory() as directory:
         tic = time.perf_counter()
@@ -73,7 +80,7 @@ def run_ours(env_id: str, seed: int) -> dict[str, Any]:
     }
 
 
-def run_sb3(env_id: str, seed: int) -> dict[str, Any]:
+def run_sb3(env_id: str, seed: int, iterations: int) -> dict[str, Any]:
     """Train sb3-contrib TRPO with its defaults (MlpPolicy, 1 env, observation normalisation)."""
     import numpy as np
     import torch
@@ -85,7 +92,7 @@ def run_sb3(env_id: str, seed: int) -> dict[str, Any]:
     env = VecNormalize(make_vec_env(env_id, n_envs=1, seed=seed), norm_obs=True, norm_reward=False)
     model = TRPO("MlpPolicy", env, seed=seed, device="cpu")
     tic = time.perf_counter()
-    model.learn(total_timesteps=ITERATIONS * 2048)
+    model.learn(total_timesteps=iterations * 2048)
     seconds = time.perf_counter() - tic
     recent = [info["r"] for info in model.ep_info_buffer]
     eval_env = VecNormalize(make_vec_env(env_id, n_envs=1, seed=seed + 1_000_003), norm_obs=True,
@@ -117,12 +124,23 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=["Hopper-v5", "HalfCheetah-v5"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--libraries", nargs="+", choices=["svrpo", "sb3-contrib"],
+                        default=["svrpo", "sb3-contrib"])
+    parser.add_argument("--steps", type=int, default=ITERATIONS * 2048,
+                        help="env steps per run, rounded up to whole 2048-step iterations")
+    parser.add_argument("--torch-threads", type=int, default=None,
+                        help="torch threads in each child (default: torch's own choice)")
     parser.add_argument("--one", nargs=3, metavar=("LIBRARY", "ENV", "SEED"), help=argparse.SUPPRESS)
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "vs_sb3.json")
     args = parser.parse_args()
+    iterations = -(-args.steps // 2048)
     if args.one:  # child process: one training run, JSON on stdout's last line
         library, env_id, seed = args.one[0], args.one[1], int(args.one[2])
-        result = (run_ours if library == "svrpo" else run_sb3)(env_id, seed)
+        if args.torch_threads is not None:
+            import torch
+
+            torch.set_num_threads(args.torch_threads)
+        result = (run_ours if library == "svrpo" else run_sb3)(env_id, seed, iterations)
         print(json.dumps(result))
         return
 
@@ -131,21 +149,26 @@ def main() -> None:
 
     report: dict[str, Any] = {
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
-        "machine": machine_info(), "versions": versions(), "iterations": ITERATIONS,
-        "env_steps": ITERATIONS * 2048, "our_config": OUR_CONFIG, "runs": [], "summary": {},
+        "machine": machine_info(), "versions": versions(), "iterations": iterations,
+        "env_steps": iterations * 2048, "our_config": OUR_CONFIG, "runs": [], "summary": {},
     }
     if args.out.exists():  # resume: keep finished runs, redo only the missing ones
         earlier = json.loads(args.out.read_text())
+        if earlier.get("env_steps") != report["env_steps"]:
+            sys.exit(f"{args.out} holds runs of {earlier.get('env_steps')} steps, not "
+                     f"{report['env_steps']}: pass another --out")
         report["runs"], report["summary"] = earlier.get("runs", []), earlier.get("summary", {})
     for env_id in args.envs:
         for seed in args.seeds:
-            for library in ("svrpo", "sb3-contrib"):
+            for library in args.libraries:
                 done = {(r["library"], r["env"], r["seed"]) for r in report["runs"]}
                 if (library, env_id, seed) in done:
                     continue
                 load = list(os.getloadavg())
+                threads = [] if args.torch_threads is None else ["--torch-threads", str(args.torch_threads)]
                 child = subprocess.run(
-                    [sys.executable, __file__, "--one", library, env_id, str(seed)],
+                    [sys.executable, __file__, "--steps", str(args.steps), *threads,
+                     "--one", library, env_id, str(seed)],
                     capture_output=True, text=True,
                 )
                 if child.returncode != 0:
@@ -159,16 +182,17 @@ def main() -> None:
                 args.out.write_text(json.dumps(report, indent=2) + "\n")  # partial results survive
         ours = [r for r in report["runs"] if r["env"] == env_id and r["library"] == "svrpo"]
         theirs = [r for r in report["runs"] if r["env"] == env_id and r["library"] == "sb3-contrib"]
-        report["summary"][env_id] = {
-            "median_seconds_svrpo": statistics.median(r["seconds"] for r in ours),
-            "median_seconds_sb3": statistics.median(r["seconds"] for r in theirs),
-            "speedup_median_of_per_seed_ratios": statistics.median(
-                b["seconds"] / a["seconds"] for a, b in zip(ours, theirs, strict=True)),
-            "eval_return_svrpo": [r["final_eval_return"] for r in ours],
-            "eval_return_sb3": [r["final_eval_return"] for r in theirs],
-            "mean_eval_return_svrpo": statistics.mean(r["final_eval_return"] for r in ours),
-            "mean_eval_return_sb3": statistics.mean(r["final_eval_return"] for r in theirs),
-        }
+        summary: dict[str, Any] = {}
+        for name, runs in (("svrpo", ours), ("sb3", theirs)):
+            if runs:
+                summary[f"median_seconds_{name}"] = statistics.median(r["seconds"] for r in runs)
+                summary[f"eval_return_{name}"] = [r["final_eval_return"] for r in runs]
+                summary[f"mean_eval_return_{name}"] = statistics.mean(
+                    r["final_eval_return"] for r in runs)
+        if ours and theirs and len(ours) == len(theirs):
+            summary["speedup_median_of_per_seed_ratios"] = statistics.median(
+                b["seconds"] / a["seconds"] for a, b in zip(ours, theirs, strict=True))
+        report["summary"][env_id] = summary
         print(json.dumps({env_id: report["summary"][env_id]}), flush=True)
         args.out.write_text(json.dumps(report, indent=2) + "\n")
 
