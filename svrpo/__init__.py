@@ -6,16 +6,20 @@
     policy = svrpo.load_policy("runs/hopper")
     action = policy.act(observation, deterministic=True)
 
-`train` and `load_policy` import torch when first used, not at `import svrpo` (the sampling
-workers import this package and must stay torch-free).
+`train`, `load_policy` and the estimator names (`GradientEstimator`, `BatchGradients` and the
+built-in estimators) import torch when first used, not at `import svrpo` (the sampling workers
+import this package and must stay torch-free).
 """
 
 from typing import Any
 
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, field_docs, make_preset
 
+_ESTIMATOR_NAMES = ("BatchGradients", "GradientEstimator", "FullGradient", "MinibatchGradient",
+                    "SvrgGradient", "SarahGradient", "StormGradient")
+
 __all__ = ["PRESET_NAMES", "SCALES", "Config", "ConfigError", "field_docs", "load_policy", "make_preset",
-           "train", "__version__"]
+           "train", "__version__", *_ESTIMATOR_NAMES]
 __version__ = "0.1.0"
 
 
@@ -28,4 +32,8 @@ def __getattr__(name: str) -> Any:
         from svrpo.evaluation import load_policy
 
         return load_policy
+    if name in _ESTIMATOR_NAMES:
+        from svrpo import estimators
+
+        return getattr(estimators, name)
     raise AttributeError(f"module 'svrpo' has no attribute {name!r}")

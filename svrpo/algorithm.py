@@ -31,12 +31,15 @@ from svrpo.allocator import keep_freed_memory
 from svrpo.atomic import write_text_atomic
 from svrpo.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction, explained_variance
 from svrpo.config import Config, ConfigError
+from svrpo.estimators import GradientEstimator
 from svrpo.logging import RunLogger, truncate_progress
 from svrpo.normalization import RunningMeanStd
 from svrpo.objectives import SurrogateBatch, old_log_prob
+from svrpo.parts import UpdateParts, update_parts
 from svrpo.policy import GaussianMlpPolicy
 from svrpo.policy_snapshot import PolicySnapshot
 from svrpo.run_lock import exclusive_writer, record_holder
+from svrpo.run_record import write_config
 from svrpo.sampling import Batch, Sampler, WorkerDiedError
 from svrpo.update import UpdateStats, update_policy
 
@@ -68,6 +71,8 @@ class Run:
     baseline: Baseline
     normalizer: RunningMeanStd | None
     sampler: Sampler
+    parts: UpdateParts
+    """The policy update's estimator, metric, KL anchor and stopping rule, built from config."""
     generator: torch.Generator
     """Mini-batches and Fisher subsets."""
     probe_generator: torch.Generator
@@ -100,8 +105,12 @@ def make_sampler(config: Config) -> Sampler:
                    config.max_episode_steps, stagger=config.stagger_first_episodes)
 
 
-def build_run(config: Config) -> Run:
-    """Compose the parts of a run from its config (the one place where they are chosen)."""
+def build_run(config: Config, estimator: GradientEstimator | None = None) -> Run:
+    """Compose the parts of a run from its config (the one place where they are chosen).
+
+    `estimator`: a user's gradient estimator (estimators.GradientEstimator) in place of the one
+    config.estimator names.
+    """
     torch.set_num_threads(config.torch_threads)
     keep_freed_memory()  # the update reuses large buffers: no page faults per allocation
     sampler = make_sampler(config)
@@ -129,6 +138,7 @@ def build_run(config: Config) -> Run:
         baseline=baseline,
         normalizer=normalizer,
         sampler=sampler,
+        parts=update_parts(config, estimator),
         generator=_seeded(config.seed + 1),
         probe_generator=_seeded(config.seed + 3),
         baseline_generator=baseline_generator,
@@ -267,7 +277,7 @@ def run_iteration(run: Run) -> dict[str, Any]:
                          "in the batch; update skipped, parameters kept")
     else:
         before = _learned_state(run)
-        stats = update_policy(run.policy, data, config, run.generator, run.probe_generator)
+        stats = update_policy(run.policy, data, run.parts, run.generator, run.probe_generator)
         explained = explained_variance(values, targets)  # of the values the advantages used
         if run.normalizer is not None:
             run.normalizer.update(batch.observations)
@@ -394,14 +404,6 @@ def restore_state(run: Run, state: dict[str, Any], source: Path) -> None:
         ) from None
 
 
-def _write_config(run_dir: Path, config: Config) -> None:
-    """config.json, atomically (a resume reads it: a half-written one would strand the run)."""
-    path, text = run_dir / "config.json", config.to_json() + "\n"
-    if path.exists() and path.read_text() == text:
-        return
-    write_text_atomic(path, text)
-
-
 def _resume(run: Run, run_dir: Path) -> list[str]:
     """Restore the newest readable checkpoint and progress.csv as it was then; notes to print."""
     directory = run_dir / "checkpoints"
@@ -441,7 +443,8 @@ def _truncate_progress(progress: Path, iteration: int) -> list[str]:
             f"it holds {len(kept)} rows; continuing"]
 
 
-def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bool = True) -> Run:
+def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bool = True,
+          estimator: GradientEstimator | None = None) -> Run:
     """Train to config.total_steps, writing config.json, progress.csv, TensorBoard, checkpoints.
 
     resume=True continues from the newest readable checkpoint in run_dir (an older one if the
@@ -450,26 +453,30 @@ def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bo
     rows an earlier run left in run_dir are removed (and its TensorBoard events hidden), so the
     two runs never mix. Whatever stops the loop (Ctrl-C, dying workers, a bug), the last
     completed iteration is checkpointed before the exception leaves.
+
+    `estimator`: a user's gradient estimator in place of config.estimator's (see build_run); a
+    resume must pass the same one again (config.json cannot record an object).
     """
     with exclusive_writer(run_dir):  # one writer per run (re-entrant: the CLI may hold it already)
-        return _train(config, run_dir, resume, show_progress)
+        return _train(config, run_dir, resume, show_progress, estimator)
 
 
-def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool) -> Run:
+def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
+           estimator: GradientEstimator | None) -> Run:
     """train() once this process holds the run directory's writer lock."""
     checkpoints = run_dir / "checkpoints"
     if not resume:
         for stale in checkpoint.list_checkpoints(checkpoints):
             stale.unlink()
         # Written first, so that a run killed while starting is still a resumable directory.
-        _write_config(run_dir, config)
+        write_config(run_dir, config)
     progress = run_dir / "progress.csv"
-    run = build_run(config)
+    run = build_run(config, estimator)
     try:
         if not resume:
             _restore_progress(progress, "")  # a fresh start: no rows of an earlier run
         notes = _resume(run, run_dir) if resume else []
-        _write_config(run_dir, config)  # on resume only if it changed (e.g. more total_steps)
+        write_config(run_dir, config)  # on resume only if it changed (e.g. more total_steps)
         logger = RunLogger(run_dir, config.iterations * config.batch_size, run.env_steps, show_progress)
         for note in notes:
             logger.message(note)

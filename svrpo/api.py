@@ -3,27 +3,40 @@
 
 from __future__ import annotations
 
-import json
 import os
-import platform
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from svrpo.config import Config
 
+if TYPE_CHECKING:
+    from svrpo.estimators import GradientEstimator
+
 
 def train(config: Config, run_dir: str | os.PathLike[str], resume: bool = False,
-          show_progress: bool = True) -> Path:
+          show_progress: bool = True, env: Callable[[], Any] | None = None,
+          estimator: GradientEstimator | None = None) -> Path:
     """Train `config` into `run_dir` (the same files as `svrpo train`); returns the run directory.
 
     resume=True continues the run in run_dir from its newest readable checkpoint.
+    env: a function that builds your own Gymnasium env, defined at the top level of an
+    importable module (each sampling worker imports it); the run's env_id becomes
+    "module:function", so config.json still names the task.
+    estimator: your gradient estimator (the svrpo.estimators.GradientEstimator protocol, see
+    docs/estimators.md) in place of config.estimator's; pass it again to resume.
     """
     from svrpo.algorithm import train as train_run
+    from svrpo.envs import env_id_of
+    from svrpo.run_record import write_meta
 
+    if env is not None:
+        config = config.replace(env_id=env_id_of(env))
     path = Path(run_dir)
-    if not resume and not (path / "run.json").exists():
+    if not resume:
         path.mkdir(parents=True, exist_ok=True)
-        meta = {"preset": "custom", "scale": None, "argv": ["python api"],
-                "python": platform.python_version()}
-        (path / "run.json").write_text(json.dumps(meta, indent=2) + "\n")
-    train_run(config, path, resume=resume, show_progress=show_progress)
+        extra = {} if estimator is None else {
+            "estimator_object": f"{type(estimator).__module__}.{type(estimator).__qualname__}"}
+        write_meta(path, "custom", None, keep_existing=True, **extra)
+    train_run(config, path, resume=resume, show_progress=show_progress, estimator=estimator)
     return path

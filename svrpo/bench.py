@@ -14,6 +14,7 @@ a quick version (about a minute on 2 cores).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import platform
@@ -33,6 +34,8 @@ import torch
 
 from svrpo.arguments import OneLineParser
 from svrpo.envs import EnvError, env_info, is_mujoco_task, make_env, scale_action
+from svrpo.estimators import BatchGradients, VarianceDiagnostic
+from svrpo.parts import UpdateParts
 from svrpo.policy import GaussianMlpPolicy
 from svrpo.policy_snapshot import PolicySnapshot
 from svrpo.sampling import Batch, Sampler, steps_per_env
@@ -240,63 +243,57 @@ class _Timers:
         return timed
 
 
-@contextmanager
-def _instrumented_update(timers: _Timers) -> Iterator[None]:
-    """Patch svrpo.update's collaborators so each call is timed under the part it belongs to.
+def timed_parts(parts: UpdateParts, timers: _Timers) -> UpdateParts:
+    """The same update parts, each call timed under the part it belongs to (nothing patched).
 
-    Parts: full_gradient (grad U over all N), minibatch_gradients (current and snapshot
-    gradients on mini-batches), fisher_setup (building grad-KL), fisher_products (each F v,
-    inside CG and for s^T F s), cg (the CG recursion less its products), line_search (the
-    trials, surrogate and KL on the full batch), variance_probe. The remainder of update_policy
-    is reported as other.
+    Parts: full_gradient (grad U over all N, g~ included), minibatch_gradients (mini-batch
+    gradients at w_j, w~ or an earlier iterate), fisher_setup (building a Fisher product),
+    fisher_products (each F v, inside CG and for s^T F s), cg (the metric's solve less its
+    products), line_search (the trials, surrogate and KL on the full batch), variance_probe (its
+    gradients included). The remainder of update_policy is reported as other.
     """
-    from svrpo import update
 
-    saved = {name: getattr(update, name) for name in (
-        "_subset_gradient", "fisher_vector_product", "search_direction", "backtracking_line_search",
-        "estimator_variances",
-    )}
-
-    def subset_gradient(*args: Any, **kwargs: Any) -> Callable[[torch.Tensor | None], torch.Tensor]:
-        gradient = saved["_subset_gradient"](*args, **kwargs)
-
-        def timed(indices: torch.Tensor | None) -> torch.Tensor:
-            with timers.time("full_gradient" if indices is None else "minibatch_gradients"):
-                return gradient(indices)
+    def timed_gradient(function: Callable[..., torch.Tensor]) -> Callable[..., torch.Tensor]:
+        def timed(*args: Any) -> torch.Tensor:
+            with timers.time("full_gradient" if args[-1] is None else "minibatch_gradients"):
+                return function(*args)
 
         return timed
 
-    def fisher_vector_product(*args: Any, **kwargs: Any) -> Callable[[torch.Tensor], torch.Tensor]:
+    def gradients(*args: Any) -> BatchGradients:
+        with timers.time("full_gradient"):  # the copy of w~ and g~ on all N rows
+            built = parts.gradients(*args)
+        built.at_current = timed_gradient(built.at_current)
+        built.at_snapshot = timed_gradient(built.at_snapshot)
+        built.at = timed_gradient(built.at)  # type: ignore[method-assign]
+        return built
+
+    def fisher_product(*args: Any) -> Callable[[torch.Tensor], torch.Tensor]:
         with timers.time("fisher_setup"):
-            product = saved["fisher_vector_product"](*args, **kwargs)
+            product = parts.fisher_product(*args)
         return timers.wrap("fisher_products", product)
 
-    def search_direction(*args: Any, **kwargs: Any) -> Any:
-        before = timers.seconds.get("fisher_products", 0.0)
-        with timers.time("cg"):
-            result = saved["search_direction"](*args, **kwargs)
-        # Report CG's own work apart from the Fisher products it calls.
-        timers.seconds["cg"] -= timers.seconds.get("fisher_products", 0.0) - before
-        return result
+    class TimedMetric:
+        def direction(self, gradient: torch.Tensor, product: Callable[[torch.Tensor], torch.Tensor]) -> Any:
+            before = timers.seconds.get("fisher_products", 0.0)
+            with timers.time("cg"):
+                result = parts.metric.direction(gradient, product)
+            # Report CG's own work apart from the Fisher products it calls.
+            timers.seconds["cg"] -= timers.seconds.get("fisher_products", 0.0) - before
+            return result
 
-    def probe(*args: Any, **kwargs: Any) -> Any:
-        gradients = ("full_gradient", "minibatch_gradients")
-        before = {key: timers.seconds.get(key, 0.0) for key in gradients}
+    def probe(*args: Any) -> VarianceDiagnostic:
+        gradient_parts = ("full_gradient", "minibatch_gradients")
+        before = {key: timers.seconds.get(key, 0.0) for key in gradient_parts}
         with timers.time("variance_probe"):
-            result = saved["estimator_variances"](*args, **kwargs)
+            result = parts.variance_probe(*args)
         timers.seconds.update(before)  # the probe's own gradients count as probe time only
         return result
 
-    update._subset_gradient = subset_gradient
-    update.fisher_vector_product = fisher_vector_product
-    update.search_direction = search_direction
-    update.backtracking_line_search = timers.wrap("line_search", saved["backtracking_line_search"])
-    update.estimator_variances = probe
-    try:
-        yield
-    finally:
-        for name, value in saved.items():
-            setattr(update, name, value)
+    return dataclasses.replace(
+        parts, gradients=gradients, fisher_product=fisher_product, metric=TimedMetric(),
+        line_search=timers.wrap("line_search", parts.line_search), variance_probe=probe,
+    )
 
 
 UPDATE_PARTS = ("full_gradient", "minibatch_gradients", "fisher_setup", "fisher_products", "cg",
@@ -322,6 +319,7 @@ def update_breakdown(
     from svrpo.algorithm import build_run, run_iteration, snapshot_of, surrogate_batch
     from svrpo.baselines import MlpValueFunction
     from svrpo.config import make_preset
+    from svrpo.parts import update_parts
     from svrpo.update import update_policy
 
     common = {"seed": seed, "eval_every": 0, **overrides}
@@ -351,14 +349,14 @@ def update_breakdown(
             run.generator.set_state(generator)
             run.probe_generator.set_state(probe)
             timers = _Timers()
-            with _instrumented_update(timers):
-                tic = time.perf_counter()
-                stats = update_policy(run.policy, data, config, run.generator, run.probe_generator)
-                total = time.perf_counter() - tic
-            parts = {part: timers.seconds.get(part, 0.0) for part in UPDATE_PARTS}
-            parts["other"] = total - sum(parts.values())
+            parts = timed_parts(update_parts(config), timers)
+            tic = time.perf_counter()
+            stats = update_policy(run.policy, data, parts, run.generator, run.probe_generator)
+            total = time.perf_counter() - tic
+            seconds = {part: timers.seconds.get(part, 0.0) for part in UPDATE_PARTS}
+            seconds["other"] = total - sum(seconds.values())
             results[name] = {
-                "seconds": total, "parts_s": parts, "calls": dict(timers.calls),
+                "seconds": total, "parts_s": seconds, "calls": dict(timers.calls),
                 "inner_steps": stats.inner_steps_attempted, "max_inner_steps": config.inner_steps,
                 "inner_stop": config.inner_stop, "accepted": stats.inner_steps_accepted,
                 "backtracks": stats.backtracks, "minibatch_size": config.minibatch_size,

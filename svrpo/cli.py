@@ -9,14 +9,12 @@ import argparse
 import contextlib
 import json
 import os
-import platform
 import signal
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from svrpo.arguments import CommandLineError, OneLineParser
-from svrpo.atomic import write_text_atomic
 from svrpo.checkpoint import CheckpointError
 from svrpo.checkpoint import one_line as checkpoint_one_line
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, field_names, make_preset
@@ -25,6 +23,7 @@ from svrpo.evaluation import EvaluationError
 from svrpo.experiments.specs import SpecError
 from svrpo.run_files import clear_run, holds_anything, is_run_directory
 from svrpo.run_lock import LockedError, exclusive_writer
+from svrpo.run_record import write_config, write_meta
 
 if TYPE_CHECKING:
     from svrpo.experiments.backends import Backend
@@ -162,10 +161,8 @@ def _train_locked(args: argparse.Namespace, config: Config, preset: str, run_dir
     if args.resume is None:
         _make_room(run_dir, args.overwrite)
         # config.json first (atomically): a run killed at any later moment can be resumed.
-        write_text_atomic(run_dir / "config.json", config.to_json() + "\n")
-        meta = {"preset": preset, "scale": args.scale, "argv": sys.argv[1:],
-                "python": platform.python_version()}
-        (run_dir / "run.json").write_text(json.dumps(meta, indent=2) + "\n")
+        write_config(run_dir, config)
+        write_meta(run_dir, preset, args.scale)
 
     from svrpo.algorithm import TrainingError, train
     from svrpo.experiments.runner import raise_keyboard_interrupt
@@ -418,14 +415,14 @@ def make_parser() -> argparse.ArgumentParser:
     sweep = commands.add_parser(
         "sweep",
         allow_abbrev=False,
-        help="train a grid of tasks x presets x seeds (figure1, figure2, figure3 or a YAML file)",
+        help="train a grid of tasks x presets x seeds (figure1, figure2, figure3, estimators or a YAML file)",
         description="Train every run of an experiment into ROOT/NAME-SCALE/ENV/PRESET/seedK/. "
         "Finished runs are skipped, unfinished ones resume from their last checkpoint, and a new run "
         "whose exact config already finished under another experiment of ROOT is copied. Any config "
         "field can be set for every run as --field value. --backend ray runs each run as a Ray task "
         "(on a cluster with --address), retried and resumed if its worker or node dies.",
     )
-    sweep.add_argument("spec", metavar="SPEC", help="figure1 | figure2 | figure3 | FILE.yaml")
+    sweep.add_argument("spec", metavar="SPEC", help="figure1 | figure2 | figure3 | estimators | FILE.yaml")
     sweep.add_argument("--scale", default=None, choices=SCALES, help="default: the spec's (laptop)")
     sweep.add_argument("--seeds", type=int, default=None, help="seeds 0..N-1 (default: the spec's, 5)")
     sweep.add_argument("--tasks", default=None, metavar="A,B",

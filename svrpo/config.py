@@ -1,6 +1,6 @@
 """Frozen, typed run configuration, named presets and validation.
 
-Every ablation in the paper is one field: `estimator` (svrg | sgd | full), `metric`
+Every ablation in the paper is one field: `estimator` (svrg | sgd | full; also sarah | storm), `metric`
 (fisher | identity) and `surrogate` (ratio | loglik). Presets are complete configs; the CLI
 overrides any field by name.
 """
@@ -14,7 +14,7 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
-Estimator = Literal["full", "sgd", "svrg"]
+Estimator = Literal["full", "sgd", "svrg", "sarah", "storm"]
 Metric = Literal["fisher", "identity"]
 Surrogate = Literal["ratio", "loglik"]
 KlAnchor = Literal["sampling", "iterate"]
@@ -43,11 +43,15 @@ class Config:
     """N: environment steps sampled with the anchor policy per outer iteration."""
     estimator: Estimator = "svrg"
     """Gradient used at each inner step: `svrg` (g~ + mean_I(grad U_t(w) - grad U_t(w~))),
-    `sgd` (mean_I grad U_t(w), the paper's Fig. 2 ablation) or `full` (grad U(w) on all N: TRPO)."""
+    `sgd` (mean_I grad U_t(w), the paper's Fig. 2 ablation), `full` (grad U(w) on all N: TRPO),
+    `sarah` (v_0 = g~, v_j = v_{j-1} + mean_I(grad U_t(w_j) - grad U_t(w_{j-1}))) or `storm`
+    (d_0 = g~, d_j = mean_I grad U_t(w_j) + (1 - a)(d_{j-1} - mean_I grad U_t(w_{j-1})))."""
     minibatch_size: int = 1_000
     """m: samples per inner-step mini-batch (ignored by `full`)."""
     inner_steps: int = 10
     """J: inner steps per outer iteration (1 for `full`)."""
+    storm_momentum: float = 0.1
+    """a in (0, 1]: STORM's momentum (estimator `storm` only; a = 1 is plain SGD, a -> 0 SARAH)."""
 
     # --- the trust-region step ---
     metric: Metric = "fisher"
@@ -262,6 +266,7 @@ def validate(config: Config) -> Config:
          "minibatch_size (m) must be <= batch_size (N)"),
         (c.estimator != "full" or c.inner_steps == 1,
          "estimator 'full' (TRPO) takes inner_steps (J) = 1"),
+        (0 < c.storm_momentum <= 1, "storm_momentum (a) must be in (0, 1]"),
         (c.cg_iters >= 1, "cg_iters must be >= 1"),
         (0 <= c.cg_damping < math.inf, "cg_damping must be >= 0 and finite"),
         (0 <= c.cg_residual_tol < math.inf, "cg_residual_tol must be >= 0 and finite"),
@@ -305,7 +310,8 @@ PAPER_INNER: dict[str, tuple[int, int, int]] = {
 }
 _DEEP_TASKS = ("Ant", "Humanoid")
 
-PRESET_NAMES = ("trpo", "svrpo", "svrpo-loglik", "svrpo-sgd", "svrpo-identity")
+PRESET_NAMES = ("trpo", "svrpo", "svrpo-loglik", "svrpo-sgd", "svrpo-identity", "svrpo-sarah",
+                "svrpo-storm")
 SCALES: tuple[Scale, ...] = ("paper", "laptop", "modern")
 
 # The ablation field of each preset relative to `svrpo`.
@@ -314,6 +320,8 @@ _ABLATIONS: dict[str, dict[str, Any]] = {
     "svrpo-loglik": {"surrogate": "loglik"},
     "svrpo-sgd": {"estimator": "sgd"},
     "svrpo-identity": {"metric": "identity"},
+    "svrpo-sarah": {"estimator": "sarah"},
+    "svrpo-storm": {"estimator": "storm"},
 }
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import difflib
 import importlib
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from typing import Any
 
@@ -83,20 +83,44 @@ def check_import_allowed(env_id: str, allowed: Collection[str], source: object) 
                        f"which runs its code; if you trust the file, pass --allow-import {module}")
 
 
+def env_id_of(factory: Callable[[], gym.Env]) -> str:
+    """The "module:function" id of a user's env factory: a function at the top level of an
+    importable module (spawned sampling workers import the module and call it themselves)."""
+    module, name = getattr(factory, "__module__", None), getattr(factory, "__qualname__", "")
+    if not module or not name or "<" in name or "." in name:
+        raise EnvError(f"{factory!r} cannot be used as an environment factory: pass a function "
+                       "defined at the top level of a module (not a lambda, a nested function or "
+                       "a method), so that each sampling worker can import it")
+    return f"{module}:{name}"
+
+
 def registered_id(env_id: str) -> str:
     """env_id as Gymnasium's registry knows it, importing the module of a "module:Env" id first;
-    EnvError for an id that does not exist (suggesting close matches)."""
+    EnvError for an id that does not exist (suggesting close matches).
+
+    "module:Name" is either Gymnasium's form (importing the module registers Name) or a user's
+    env factory: a callable `Name` in the module that returns an env, registered here as
+    "module.Name" (Gymnasium itself reads a ":" in an id as "import this module"); its time
+    limit is DEFAULT_HORIZON, or max_episode_steps.
+    """
     module, _, name = env_id.rpartition(":")
     if module:
+        factory_id = f"{module}.{name}"
+        if factory_id in gym.registry:  # a factory registered by an earlier call
+            return factory_id
         # Gymnasium's "package.module:EnvName-v0" form: importing the module registers the env
         # (also inside spawned workers, which start with a fresh registry).
         try:
-            importlib.import_module(module)
+            imported = importlib.import_module(module)
         except ImportError as error:
             raise EnvError(f"cannot import {module!r} for environment {env_id!r}: {error}") from None
         except Exception as error:  # the module's own code failed while it was imported
             raise EnvError(f"importing {module!r} for environment {env_id!r} raised "
                            f"{type(error).__name__}: {' '.join(str(error).split())}") from None
+        factory = getattr(imported, name, None)
+        if name not in gym.registry and callable(factory):
+            gym.register(id=factory_id, entry_point=factory)
+            return factory_id
         env_id = name
     if env_id not in gym.registry:
         matches = difflib.get_close_matches(env_id, list(gym.registry.keys()), n=3, cutoff=0.6)

@@ -1,16 +1,128 @@
-"""Gradient estimators of the surrogate U(w) = mean_t U_t(w): full, sgd and svrg."""
+"""Gradient estimators of the surrogate U(w) = mean_t U_t(w) for the inner loop.
+
+Each estimator is a part: an object built once per run (svrpo/parts.py) and handed to the
+update, which calls `start` at the snapshot w~ of every outer iteration, then `estimate` once
+per inner step. All of them read the iteration's batch only, through `BatchGradients`:
+
+* `FullGradient`       grad U(w_j) on all N rows (TRPO);
+* `MinibatchGradient`  mean_I grad U_t(w_j) (SGD, the paper's Fig. 2 ablation);
+* `SvrgGradient`       g~ + mean_I (grad U_t(w_j) - grad U_t(w~)) (Johnson & Zhang 2013, Eq. 8);
+* `SarahGradient`      v_0 = g~, v_j = v_{j-1} + mean_I (grad U_t(w_j) - grad U_t(w_{j-1}))
+                       (SARAH, Nguyen et al. 2017; SPIDER; as in SARAPO);
+* `StormGradient`      d_0 = g~, d_j = mean_I grad U_t(w_j) + (1 - a)(d_{j-1} - mean_I grad U_t(w_{j-1}))
+                       (STORM, Cutkosky & Orabona 2019; STORM-PG).
+
+A user's estimator is any object with the `GradientEstimator` methods (see docs/estimators.md).
+"""
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import torch
 
-from svrpo.config import Estimator
+from svrpo.config import Surrogate
+from svrpo.objectives import SurrogateBatch, surrogate
+from svrpo.parameters import flat_gradient, flat_parameters, set_flat_parameters
+from svrpo.policy import GaussianMlpPolicy
 
 # indices -> mean over those rows of grad U_t at a fixed parameter vector; None = all N rows.
 SubsetGradient = Callable[[torch.Tensor | None], torch.Tensor]
+
+
+def subset_gradient(policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> SubsetGradient:
+    """indices -> grad of mean_{t in I} U_t at the policy's parameters when called (None: all rows)."""
+
+    def gradient(indices: torch.Tensor | None) -> torch.Tensor:
+        rows = batch if indices is None else batch.subset(indices)
+        return flat_gradient(surrogate(policy, rows, kind), policy)
+
+    return gradient
+
+
+class BatchGradients:
+    """Mini-batch gradients of the surrogate on one iteration's batch, at three kinds of point.
+
+    `at_current` differentiates at the live inner iterate w_j (the policy the update moves),
+    `at_snapshot` at w~ (frozen when this object is built), `at` at any flat parameter vector
+    (e.g. w_{j-1}, for the recursive estimators). `snapshot_full` is g~ = grad U(w~) on all N
+    rows, computed once.
+    """
+
+    def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> None:
+        self.policy = policy
+        self._snapshot_policy = copy.deepcopy(policy)  # w~: frozen for the whole iteration
+        self._scratch_policy: GaussianMlpPolicy | None = None  # built on the first `at`
+        self._batch, self._kind = batch, kind
+        self.at_current = subset_gradient(policy, batch, kind)
+        self.at_snapshot = subset_gradient(self._snapshot_policy, batch, kind)
+        self.snapshot_full = self.at_snapshot(None)
+
+    def current_point(self) -> torch.Tensor:
+        """w_j as a flat copy (unaffected by later in-place moves of the policy)."""
+        return flat_parameters(self.policy)
+
+    def at(self, point: torch.Tensor, indices: torch.Tensor | None) -> torch.Tensor:
+        """grad of mean_{t in I} U_t at the flat parameters `point`."""
+        if self._scratch_policy is None:
+            self._scratch_policy = copy.deepcopy(self._snapshot_policy)
+        set_flat_parameters(self._scratch_policy, point)
+        return subset_gradient(self._scratch_policy, self._batch, self._kind)(indices)
+
+
+@runtime_checkable
+class GradientEstimator(Protocol):
+    """What the inner loop needs of a gradient estimator (one object per run, reused).
+
+    The update calls `start(gradients)` at w~ at the beginning of every outer iteration, then
+    `estimate(indices)` once per inner step j = 0..J-1 with that step's mini-batch row indices,
+    after the policy has moved to w_j. `peek(indices)` is the estimate the same call would
+    return, without advancing any state: the variance probe uses it. `uses_minibatches` False
+    means the estimator ignores `indices` (the update then draws all N rows).
+    """
+
+    uses_minibatches: bool
+
+    def start(self, gradients: BatchGradients) -> None: ...
+
+    def estimate(self, indices: torch.Tensor) -> torch.Tensor: ...
+
+    def peek(self, indices: torch.Tensor) -> torch.Tensor: ...
+
+
+class _Stateless:
+    """Base of the estimators whose estimate depends on the mini-batch only: peek = estimate."""
+
+    uses_minibatches = True
+    gradients: BatchGradients
+
+    def start(self, gradients: BatchGradients) -> None:
+        self.gradients = gradients
+
+    def estimate(self, indices: torch.Tensor) -> torch.Tensor:
+        return self.peek(indices)
+
+    def peek(self, indices: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+
+class FullGradient(_Stateless):
+    """grad U(w_j) over all N rows: TRPO's gradient (the mini-batch is ignored)."""
+
+    uses_minibatches = False
+
+    def peek(self, indices: torch.Tensor) -> torch.Tensor:
+        return self.gradients.at_current(None)
+
+
+class MinibatchGradient(_Stateless):
+    """mean_I grad U_t(w_j): plain mini-batch SGD, unbiased, with the full mini-batch variance."""
+
+    def peek(self, indices: torch.Tensor) -> torch.Tensor:
+        return self.gradients.at_current(indices)
 
 
 def svrg_gradient(
@@ -26,65 +138,141 @@ def svrg_gradient(
     return snapshot_full_gradient + (minibatch_gradient - minibatch_snapshot_gradient)
 
 
-@dataclass(frozen=True)
-class GradientEstimator:
-    """One of the three estimators, bound to the current and snapshot gradient oracles."""
+class SvrgGradient(_Stateless):
+    """The paper's estimator: svrg_gradient with the control variate at the snapshot w~."""
 
-    kind: Estimator
-    current: SubsetGradient
-    """Gradient at the current inner iterate w_j."""
-    snapshot: SubsetGradient
-    """Gradient at the snapshot w~ (the sampling policy of this iteration)."""
-    snapshot_full_gradient: torch.Tensor
-    """g~ = grad U(w~) over all N samples, computed once per outer iteration."""
+    def peek(self, indices: torch.Tensor) -> torch.Tensor:
+        g = self.gradients
+        return svrg_gradient(g.snapshot_full, g.at_current(indices), g.at_snapshot(indices))
+
+
+def sarah_gradient(
+    previous_estimate: torch.Tensor,
+    minibatch_gradient: torch.Tensor,
+    minibatch_previous_gradient: torch.Tensor,
+) -> torch.Tensor:
+    """v_j = v_{j-1} + mean_I(grad U_t(w_j) - grad U_t(w_{j-1}))  (SARAH / SPIDER).
+
+    Given v_{j-1}, E_I[v_j] = v_{j-1} + grad U(w_j) - grad U(w_{j-1}): equal to grad U(w_j) when
+    v_{j-1} = grad U(w_{j-1}) exactly. Along a path the errors of earlier steps carry over, so
+    the estimate is biased conditionally on the path; its variance shrinks with ||w_j - w_{j-1}||.
+    """
+    return previous_estimate + (minibatch_gradient - minibatch_previous_gradient)
+
+
+def storm_gradient(
+    previous_estimate: torch.Tensor,
+    minibatch_gradient: torch.Tensor,
+    minibatch_previous_gradient: torch.Tensor,
+    momentum: float,
+) -> torch.Tensor:
+    """d_j = mean_I grad U_t(w_j) + (1 - a)(d_{j-1} - mean_I grad U_t(w_{j-1}))  (STORM).
+
+    a = 1 is plain SGD; a -> 0 approaches the SARAH recursion. Given an exact d_{j-1} the
+    expectation over I is grad U(w_j).
+    """
+    return minibatch_gradient + (1.0 - momentum) * (previous_estimate - minibatch_previous_gradient)
+
+
+class _Recursive:
+    """Base of the estimators that carry (w_{j-1}, estimate_{j-1}) from step to step.
+
+    Step 0 returns g~ (the full gradient at w~ = w_0). A non-finite estimate is returned (the
+    update skips that step) but not recorded, so one bad mini-batch does not poison the rest.
+    """
+
+    uses_minibatches = True
+
+    def __init__(self) -> None:
+        self._previous: tuple[torch.Tensor, torch.Tensor] | None = None
+
+    def start(self, gradients: BatchGradients) -> None:
+        self.gradients = gradients
+        self._previous = None
+
+    def _combine(self, previous_estimate: torch.Tensor, minibatch: torch.Tensor,
+                 minibatch_previous: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def peek(self, indices: torch.Tensor) -> torch.Tensor:
+        if self._previous is None:
+            return self.gradients.snapshot_full.clone()
+        point, estimate = self._previous
+        return self._combine(estimate, self.gradients.at_current(indices), self.gradients.at(point, indices))
 
     def estimate(self, indices: torch.Tensor) -> torch.Tensor:
-        """The estimator's gradient for mini-batch `indices` (ignored by `full`)."""
-        if self.kind == "full":
-            return self.current(None)
-        if self.kind == "sgd":
-            return self.current(indices)
-        if self.kind == "svrg":
-            return svrg_gradient(
-                self.snapshot_full_gradient, self.current(indices), self.snapshot(indices)
-            )
-        raise ValueError(f"unknown estimator {self.kind!r}")
+        value = self.peek(indices)
+        if bool(torch.isfinite(value).all()):
+            self._previous = (self.gradients.current_point(), value)
+        return value
+
+
+class SarahGradient(_Recursive):
+    """The SARAH recursion over the inner steps, restarted from g~ at every outer iteration."""
+
+    def _combine(self, previous_estimate: torch.Tensor, minibatch: torch.Tensor,
+                 minibatch_previous: torch.Tensor) -> torch.Tensor:
+        return sarah_gradient(previous_estimate, minibatch, minibatch_previous)
+
+
+class StormGradient(_Recursive):
+    """STORM's momentum recursion with momentum a in (0, 1], restarted from g~ every iteration."""
+
+    def __init__(self, momentum: float) -> None:
+        if not 0.0 < momentum <= 1.0:
+            raise ValueError(f"STORM momentum must be in (0, 1], got {momentum}")
+        super().__init__()
+        self.momentum = momentum
+
+    def _combine(self, previous_estimate: torch.Tensor, minibatch: torch.Tensor,
+                 minibatch_previous: torch.Tensor) -> torch.Tensor:
+        return storm_gradient(previous_estimate, minibatch, minibatch_previous, self.momentum)
 
 
 @dataclass(frozen=True)
 class VarianceDiagnostic:
-    """Empirical variance of the svrg and sgd estimates around the full gradient at one point."""
+    """Mean squared distances to the full gradient grad U(w) at one point, on the same probe
+    mini-batches I_1..I_K: SVRG's, SGD's, and the run's own estimator's."""
 
     svrg_variance: float
-    """mean_k ||g_svrg(I_k) - grad U(w)||^2 over the probe mini-batches."""
+    """mean_k ||g_svrg(I_k) - grad U(w)||^2 (SVRG with the iteration's snapshot, whatever the run uses)."""
     sgd_variance: float
-    """mean_k ||g_sgd(I_k) - grad U(w)||^2 over the same mini-batches."""
+    """mean_k ||mean_{I_k} grad U_t(w) - grad U(w)||^2."""
+    estimator_error: float
+    """mean_k ||estimator.peek(I_k) - grad U(w)||^2 for the run's estimator."""
 
     @property
     def ratio(self) -> float:
-        """svrg / sgd: below 1 when the control variate helps."""
+        """svrg / sgd: below 1 when SVRG's control variate helps."""
         return self.svrg_variance / self.sgd_variance if self.sgd_variance > 0 else float("nan")
+
+    @property
+    def estimator_ratio(self) -> float:
+        """estimator / sgd for the run's estimator."""
+        return self.estimator_error / self.sgd_variance if self.sgd_variance > 0 else float("nan")
 
 
 def estimator_variances(
-    current: SubsetGradient,
-    snapshot: SubsetGradient,
-    snapshot_full_gradient: torch.Tensor,
-    probe_minibatches: list[torch.Tensor],
+    estimator: GradientEstimator, gradients: BatchGradients, probe_minibatches: list[torch.Tensor],
 ) -> VarianceDiagnostic:
-    """Measure both estimators on the same probe mini-batches at the current point.
+    """Measure SVRG, SGD and the run's estimator (its `peek`) on the same mini-batches at w.
 
-    Both are unbiased for the full gradient at the current point, so their mean squared
-    distance to it is the trace of their covariance: what the paper claims SVRG shrinks.
+    For SVRG and SGD, both unbiased, the mean squared distance to grad U(w) is the trace of
+    their covariance: what the paper claims SVRG shrinks. For SARAH and STORM the estimate at
+    step j depends on the path: the probe holds the path fixed (v_{j-1} and w_{j-1} as the loop
+    left them) and redraws only the last mini-batch, so it measures the mean squared error of
+    that step's estimate, conditional bias included, not a variance around its own mean.
     """
-    full = current(None)
-    svrg_errors, sgd_errors = [], []
+    full = gradients.at_current(None)
+    svrg_errors, sgd_errors, errors = [], [], []
     for indices in probe_minibatches:
-        minibatch = current(indices)
-        svrg = svrg_gradient(snapshot_full_gradient, minibatch, snapshot(indices))
+        minibatch = gradients.at_current(indices)
+        svrg = svrg_gradient(gradients.snapshot_full, minibatch, gradients.at_snapshot(indices))
         svrg_errors.append(float((svrg - full).pow(2).sum()))
         sgd_errors.append(float((minibatch - full).pow(2).sum()))
+        errors.append(float((estimator.peek(indices) - full).pow(2).sum()))
     return VarianceDiagnostic(
         svrg_variance=sum(svrg_errors) / len(svrg_errors),
         sgd_variance=sum(sgd_errors) / len(sgd_errors),
+        estimator_error=sum(errors) / len(errors),
     )

@@ -22,7 +22,8 @@ from svrpo.logging import read_progress
 
 # The same preset keeps its colour in every figure (the paper draws SVRPO red, TRPO blue).
 PRESET_COLORS = {"svrpo": "tab:red", "trpo": "tab:blue", "svrpo-loglik": "tab:orange",
-                 "svrpo-sgd": "tab:green", "svrpo-identity": "tab:purple"}
+                 "svrpo-sgd": "tab:green", "svrpo-identity": "tab:purple", "svrpo-sarah": "tab:brown",
+                 "svrpo-storm": "tab:olive"}
 
 Groups = Mapping[str, Mapping[str, Sequence["RunCurve"]]]
 """panel title (task) -> line label (preset) -> one curve per seed."""

@@ -1,25 +1,24 @@
 """One outer iteration's policy update: J inner trust-region steps (Algorithm 1, lines 5-12).
 
-TRPO is the same function with estimator `full`, J = 1 and nu = 1; the ablations change one
-field of the config. The function returns its statistics; only the training loop logs them.
+The parts (estimator, direction metric, KL anchor, stopping rule) arrive built, in an
+`UpdateParts` (svrpo/parts.py); TRPO is the same function with the full-gradient estimator,
+J = 1 and nu = 1. The function returns its statistics; only the training loop logs them.
 """
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
 
-from svrpo.config import Config, Surrogate
-from svrpo.estimators import GradientEstimator, SubsetGradient, estimator_variances
-from svrpo.objectives import SurrogateBatch, per_sample_surrogate, surrogate
-from svrpo.parameters import flat_gradient, flat_parameters, set_flat_parameters
+from svrpo.config import Surrogate
+from svrpo.objectives import SurrogateBatch, per_sample_surrogate
+from svrpo.parameters import flat_parameters, set_flat_parameters
+from svrpo.parts import UpdateParts
 from svrpo.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
-from svrpo.trust_region.line_search import backtracking_line_search
-from svrpo.trust_region.metrics import fisher_vector_product, max_step_length, search_direction
+from svrpo.trust_region.metrics import max_step_length
 
 
 @dataclass(frozen=True)
@@ -49,33 +48,28 @@ class UpdateStats:
     cg_iterations: float
     """Mean CG iterations per inner step."""
     svrg_variance: float
-    """Probe: mean ||g_svrg - grad U(w)||^2 at the last inner iterate (nan when off, or when no
-    inner step was accepted)."""
+    """Probe: mean ||g_svrg - grad U(w)||^2 at the last inner iterate, whatever the run's
+    estimator (nan when off, for `full`, or when no inner step was accepted)."""
     sgd_variance: float
     """Probe: mean ||g_sgd - grad U(w)||^2 on the same mini-batches (nan when off)."""
     variance_ratio: float
     """svrg_variance / sgd_variance (nan when off)."""
-
-
-def _subset_gradient(policy: GaussianMlpPolicy, batch: SurrogateBatch, config: Config) -> SubsetGradient:
-    def gradient(indices: torch.Tensor | None) -> torch.Tensor:
-        rows = batch if indices is None else batch.subset(indices)
-        return flat_gradient(surrogate(policy, rows, config.surrogate), policy)
-
-    return gradient
+    estimator_error: float
+    """Probe: mean ||g_est - grad U(w)||^2 of the run's own estimator on the same mini-batches
+    (svrg: = svrg_variance; sgd: = sgd_variance; sarah/storm: the last step's mean squared
+    error with the path held fixed, see estimators.estimator_variances)."""
+    estimator_variance_ratio: float
+    """estimator_error / sgd_variance (nan when off)."""
 
 
 class _FullBatchEvaluator:
     """U(w) and mean KL(anchor || pi_w) on the full batch at the policy's current w, from one
     forward pass of the network (values only, GaussianMlpPolicy.activations).
 
-    `last_objective` keeps the most recent U: after an accepted line search it is U at the
-    accepted point, so the next inner step need not recompute its start objective.
     """
 
     def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> None:
         self.policy, self.batch, self.kind = policy, batch, kind
-        self.last_objective = math.nan
 
     def mean(self) -> torch.Tensor:
         return self.policy.activations(self.batch.observations)[-1]
@@ -86,8 +80,7 @@ class _FullBatchEvaluator:
             mean = self.mean() if mean is None else mean
             log_prob = gaussian_log_prob(self.batch.actions, mean, self.policy.log_std)
             value = per_sample_surrogate(log_prob, self.batch.old_log_prob, self.batch.advantages, self.kind)
-            self.last_objective = float(value.mean())
-        return self.last_objective
+            return float(value.mean())
 
     def kl(self, anchor_mean: torch.Tensor, anchor_log_std: torch.Tensor,
            mean: torch.Tensor | None = None) -> float:
@@ -98,9 +91,10 @@ class _FullBatchEvaluator:
             return float(gaussian_kl(anchor_mean, anchor_log_std, mean, log_std).mean())
 
     def objective_and_kl(
-        self, anchor_mean: torch.Tensor, anchor_log_std: torch.Tensor
+        self, anchor: tuple[torch.Tensor, torch.Tensor]
     ) -> Callable[[], tuple[float, float]]:
         """The line search's evaluate(): () -> (U(w), KL(anchor || pi_w)), one forward pass."""
+        anchor_mean, anchor_log_std = anchor
 
         def evaluate() -> tuple[float, float]:
             mean = self.mean()
@@ -119,7 +113,7 @@ def _draw(count: int, size: int, generator: torch.Generator) -> torch.Tensor:
 def update_policy(
     policy: GaussianMlpPolicy,
     batch: SurrogateBatch,
-    config: Config,
+    parts: UpdateParts,
     generator: torch.Generator,
     probe_generator: torch.Generator,
 ) -> UpdateStats:
@@ -129,15 +123,14 @@ def update_policy(
     seed see the same data); `probe_generator` draws only the variance-probe mini-batches, so
     switching the probe off does not change training.
     """
+    loop, estimator = parts.loop, parts.estimator
     count = len(batch)
-    snapshot_policy = copy.deepcopy(policy)  # w~: frozen for the whole iteration
-    current = _subset_gradient(policy, batch, config)
-    snapshot = _subset_gradient(snapshot_policy, batch, config)
-    estimator = GradientEstimator(config.estimator, current, snapshot, snapshot(None))
-    fisher_rows = max(1, int(round(config.fisher_subsample * count)))
-    minibatch_rows = count if config.estimator == "full" else config.minibatch_size
+    gradients = parts.gradients(policy, batch, loop.surrogate)  # g~ at w~, once
+    estimator.start(gradients)
+    fisher_rows = max(1, int(round(loop.fisher_subsample * count)))
+    minibatch_rows = loop.minibatch_size if estimator.uses_minibatches else count
 
-    full_batch = _FullBatchEvaluator(policy, batch, config.surrogate)
+    full_batch = _FullBatchEvaluator(policy, batch, loop.surrogate)
     start_objective = step_objective = full_batch.objective()
     accepted = backtracks = skipped_curvature = skipped_gradient = 0
     expected = 0.0
@@ -145,7 +138,7 @@ def update_policy(
     cg_iterations: list[int] = []
     attempted = stopped_early = 0
 
-    for step in range(config.inner_steps):
+    for step in range(loop.inner_steps):
         attempted += 1
         indices = _draw(count, minibatch_rows, generator)
         fisher_indices = _draw(count, fisher_rows, generator)
@@ -153,56 +146,47 @@ def update_policy(
         if not torch.isfinite(gradient).all():
             skipped_gradient += 1
             continue
-        fisher_product = fisher_vector_product(
-            policy, batch.observations[fisher_indices], config.cg_damping
-        )
-        direction, cg = search_direction(
-            config.metric, gradient, fisher_product, config.cg_iters, config.cg_residual_tol
-        )
+        fisher_product = parts.fisher_product(policy, batch.observations[fisher_indices], loop.cg_damping)
+        direction, cg = parts.metric.direction(gradient, fisher_product)
         if cg is not None:
             cg_residuals.append(cg.residual_norm_sq)
             cg_iterations.append(cg.iterations)
-        step_length = max_step_length(direction, fisher_product, config.max_kl)
+        step_length = max_step_length(direction, fisher_product, loop.max_kl)
         if step_length is None or not torch.isfinite(direction).all():
             skipped_curvature += 1
             continue
 
-        if config.kl_anchor == "sampling":
-            anchor_mean, anchor_log_std = batch.old_mean, batch.old_log_std
-        else:
-            anchor_mean, anchor_log_std = full_batch.mean(), policy.log_std.detach().clone()
-        anchor_log_std = anchor_log_std.expand_as(anchor_mean)
-
         full_step = step_length * direction
-        result = backtracking_line_search(
+        result = parts.line_search(
             start=flat_parameters(policy),
             full_step=full_step,
             set_parameters=lambda flat: set_flat_parameters(policy, flat),
-            evaluate=full_batch.objective_and_kl(anchor_mean, anchor_log_std),
+            evaluate=full_batch.objective_and_kl(parts.kl_anchor.distribution(batch, policy)),
             # U(w_j) is U at the last accepted point (or at w~): a rejected search restores the
             # parameters exactly, so recomputing it would give the same number.
             start_objective=step_objective,
-            max_kl=config.max_kl,
-            ratio=config.backtrack_ratio,
-            max_backtracks=config.max_backtracks,
+            max_kl=loop.max_kl,
+            ratio=loop.backtrack_ratio,
+            max_backtracks=loop.max_backtracks,
         )
         backtracks += result.backtracks
+        step_objective = result.objective
         if result.accepted:
-            step_objective = full_batch.last_objective  # the accepted trial was evaluated last
             accepted += 1
             expected += float(gradient.dot(full_step)) * result.step_fraction
-        elif config.inner_stop == "failed_search" and step < config.inner_steps - 1:
+        if parts.stopping_rule.stop(result.accepted) and step < loop.inner_steps - 1:
             stopped_early = 1
             break
 
     # The probe looks at the last inner iterate: the farthest the loop went from w~, where the
     # control variate is weakest. With no accepted step that is w~ itself (SVRG's variance is
     # exactly 0 there), which says nothing, so the probe is left out.
-    variances = (math.nan, math.nan, math.nan)
-    if accepted and config.variance_probe_batches > 0 and config.estimator != "full":
-        probes = [_draw(count, minibatch_rows, probe_generator) for _ in range(config.variance_probe_batches)]
-        diagnostic = estimator_variances(current, snapshot, estimator.snapshot_full_gradient, probes)
-        variances = (diagnostic.svrg_variance, diagnostic.sgd_variance, diagnostic.ratio)
+    variances = (math.nan,) * 5
+    if accepted and loop.variance_probe_batches > 0 and estimator.uses_minibatches:
+        probes = [_draw(count, minibatch_rows, probe_generator) for _ in range(loop.variance_probe_batches)]
+        diagnostic = parts.variance_probe(estimator, gradients, probes)
+        variances = (diagnostic.svrg_variance, diagnostic.sgd_variance, diagnostic.ratio,
+                     diagnostic.estimator_error, diagnostic.estimator_ratio)
 
     old_log_std = batch.old_log_std.expand_as(batch.old_mean)
     final_kl = full_batch.kl(batch.old_mean, old_log_std)
@@ -221,4 +205,6 @@ def update_policy(
         svrg_variance=variances[0],
         sgd_variance=variances[1],
         variance_ratio=variances[2],
+        estimator_error=variances[3],
+        estimator_variance_ratio=variances[4],
     )

@@ -1,22 +1,34 @@
-"""full / sgd / svrg gradient estimators on a real surrogate: exactness, unbiasedness, variance."""
+"""Gradient estimators on a real surrogate: exactness, unbiasedness, variance; the recursive
+SARAH and STORM estimators against their defining properties; the probe on hand-made tables."""
 
 from __future__ import annotations
 
 import copy
+import math
 
 import pytest
 import torch
 
-from svrpo.config import Surrogate
+from svrpo.config import Surrogate, make_preset
 from svrpo.estimators import (
+    BatchGradients,
+    FullGradient,
     GradientEstimator,
+    MinibatchGradient,
+    SarahGradient,
+    StormGradient,
     SubsetGradient,
+    SvrgGradient,
     VarianceDiagnostic,
     estimator_variances,
+    sarah_gradient,
+    storm_gradient,
+    subset_gradient,
     svrg_gradient,
 )
 from svrpo.objectives import SurrogateBatch, old_log_prob, per_sample_surrogate, surrogate
-from svrpo.parameters import flat_gradient, flat_parameters, set_flat_parameters
+from svrpo.parameters import flat_parameters, set_flat_parameters
+from svrpo.parts import estimator_for
 from svrpo.policy import GaussianMlpPolicy
 
 N, OBS_DIM, ACT_DIM = 48, 3, 2
@@ -46,22 +58,19 @@ def perturbed_copy(policy: GaussianMlpPolicy, scale: float, seed: int = 7) -> Ga
 
 
 def oracle(policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> SubsetGradient:
-    def gradient(indices: torch.Tensor | None) -> torch.Tensor:
-        rows = batch if indices is None else batch.subset(indices)
-        return flat_gradient(surrogate(policy, rows, kind), policy)
-
-    return gradient
+    return subset_gradient(policy, batch, kind)
 
 
-def estimator(kind: str, current: GaussianMlpPolicy, snapshot: GaussianMlpPolicy,
-              batch: SurrogateBatch, surrogate_kind: Surrogate) -> GradientEstimator:
-    snapshot_oracle = oracle(snapshot, batch, surrogate_kind)
-    return GradientEstimator(
-        kind=kind,  # type: ignore[arg-type]
-        current=oracle(current, batch, surrogate_kind),
-        snapshot=snapshot_oracle,
-        snapshot_full_gradient=snapshot_oracle(None),
-    )
+def started(estimator: GradientEstimator, snapshot: GaussianMlpPolicy, batch: SurrogateBatch,
+            kind: Surrogate) -> tuple[GradientEstimator, GaussianMlpPolicy]:
+    """The estimator started at w~ = snapshot, and the live policy it follows (now at w~)."""
+    live = copy.deepcopy(snapshot)
+    estimator.start(BatchGradients(live, batch, kind))
+    return estimator, live
+
+
+def move_to(live: GaussianMlpPolicy, target: GaussianMlpPolicy) -> None:
+    set_flat_parameters(live, flat_parameters(target))
 
 
 def random_minibatch(generator: torch.Generator, size: int) -> torch.Tensor:
@@ -71,15 +80,14 @@ def random_minibatch(generator: torch.Generator, size: int) -> torch.Tensor:
 @pytest.mark.parametrize("kind", KINDS)
 def test_svrg_equals_full_gradient_at_the_snapshot(kind: Surrogate) -> None:
     snapshot, batch = make_snapshot_and_batch()
-    current = copy.deepcopy(snapshot)  # a separate module with identical weights
-    svrg = estimator("svrg", current, snapshot, batch, kind)
-    full = oracle(current, batch, kind)(None)
+    svrg, live = started(SvrgGradient(), snapshot, batch, kind)
+    full = oracle(live, batch, kind)(None)
     generator = torch.Generator().manual_seed(3)
     for size in (1, 5, 16, N):
         estimate = svrg.estimate(random_minibatch(generator, size))
         torch.testing.assert_close(estimate, full, rtol=1e-10, atol=1e-12)
     # ... whereas the plain mini-batch gradient is not the full gradient.
-    sgd = estimator("sgd", current, snapshot, batch, kind)
+    sgd, _ = started(MinibatchGradient(), snapshot, batch, kind)
     assert not torch.allclose(sgd.estimate(random_minibatch(generator, 5)), full, rtol=1e-3)
 
 
@@ -88,9 +96,11 @@ def test_svrg_equals_full_gradient_at_the_snapshot(kind: Surrogate) -> None:
 def test_unbiased_over_a_partition(kind: Surrogate, estimator_kind: str) -> None:
     """The mean over a partition into equal mini-batches is grad U(w), exactly, away from w~."""
     snapshot, batch = make_snapshot_and_batch(seed=1)
-    current = perturbed_copy(snapshot, scale=0.2)
-    chosen = estimator(estimator_kind, current, snapshot, batch, kind)
-    full = oracle(current, batch, kind)(None)
+    moved = perturbed_copy(snapshot, scale=0.2)
+    chosen, live = started(SvrgGradient() if estimator_kind == "svrg" else MinibatchGradient(),
+                           snapshot, batch, kind)
+    move_to(live, moved)
+    full = oracle(moved, batch, kind)(None)
     snapshot_full = oracle(snapshot, batch, kind)(None)
     assert not torch.allclose(full, snapshot_full, rtol=1e-2)  # the point really moved
     order = torch.randperm(N, generator=torch.Generator().manual_seed(5))
@@ -102,49 +112,200 @@ def test_unbiased_over_a_partition(kind: Surrogate, estimator_kind: str) -> None
 @pytest.mark.parametrize("kind", KINDS)
 def test_svrg_variance_is_much_lower_near_the_snapshot(kind: Surrogate) -> None:
     snapshot, batch = make_snapshot_and_batch(seed=2)
-    current = perturbed_copy(snapshot, scale=1e-3)
-    svrg = estimator("svrg", current, snapshot, batch, kind)
-    sgd = estimator("sgd", current, snapshot, batch, kind)
-    full = oracle(current, batch, kind)(None)
+    moved = perturbed_copy(snapshot, scale=1e-3)
+    svrg, live = started(SvrgGradient(), snapshot, batch, kind)
+    move_to(live, moved)
+    gradients = svrg.gradients  # type: ignore[attr-defined]
+    full = oracle(moved, batch, kind)(None)
     generator = torch.Generator().manual_seed(11)
     probes = [random_minibatch(generator, 6) for _ in range(60)]
     svrg_spread = torch.stack([svrg.estimate(rows) - full for rows in probes]).pow(2).sum(1).mean()
-    sgd_spread = torch.stack([sgd.estimate(rows) - full for rows in probes]).pow(2).sum(1).mean()
+    sgd_spread = torch.stack([gradients.at_current(rows) - full for rows in probes]).pow(2).sum(1).mean()
     assert float(sgd_spread) > 0
     assert float(svrg_spread / sgd_spread) < 0.1
 
-    diagnostic = estimator_variances(
-        svrg.current, svrg.snapshot, svrg.snapshot_full_gradient, probes
-    )
+    diagnostic = estimator_variances(svrg, gradients, probes)
     assert diagnostic.ratio < 0.1
     # The diagnostic is exactly the mean squared distance to the full gradient at w.
     assert diagnostic.svrg_variance == pytest.approx(float(svrg_spread), rel=1e-8)
     assert diagnostic.sgd_variance == pytest.approx(float(sgd_spread), rel=1e-8)
+    assert diagnostic.estimator_error == pytest.approx(float(svrg_spread), rel=1e-8)  # svrg's own
 
 
-def test_estimator_variances_closed_form_with_fake_oracles() -> None:
-    """Hand-computable oracles: the per-row gradients at w and w~ are rows of fixed tables."""
-    at_w = torch.tensor([[1.0, 0.0], [3.0, 2.0], [-1.0, 4.0], [5.0, -2.0]], dtype=torch.float64)
-    shift = torch.tensor([[0.5, 0.0], [0.5, 0.0], [1.5, 0.0], [-0.5, 0.0]], dtype=torch.float64)
-    at_snapshot = at_w - shift
+class TableGradients:
+    """Hand-computable gradients: per-row gradients at w~, at w_1 and at w_2 are rows of tables;
+    the 'point' is which table the live iterate is at."""
 
-    def table(rows_table: torch.Tensor) -> SubsetGradient:
-        return lambda idx: rows_table.mean(0) if idx is None else rows_table[idx].mean(0)
+    def __init__(self, tables: list[torch.Tensor]) -> None:
+        self.tables, self.position = tables, 0
+        self.snapshot_full = tables[0].mean(0)
 
+    def current_point(self) -> torch.Tensor:
+        return torch.tensor([float(self.position)])
+
+    def _rows(self, table: torch.Tensor, indices: torch.Tensor | None) -> torch.Tensor:
+        return table.mean(0) if indices is None else table[indices].mean(0)
+
+    def at_current(self, indices: torch.Tensor | None) -> torch.Tensor:
+        return self._rows(self.tables[self.position], indices)
+
+    def at_snapshot(self, indices: torch.Tensor | None) -> torch.Tensor:
+        return self._rows(self.tables[0], indices)
+
+    def at(self, point: torch.Tensor, indices: torch.Tensor | None) -> torch.Tensor:
+        return self._rows(self.tables[int(point.item())], indices)
+
+
+AT_SNAPSHOT = torch.tensor([[1.0, 0.0], [3.0, 2.0], [-1.0, 4.0], [5.0, -2.0]], dtype=torch.float64)
+SHIFT = torch.tensor([[0.5, 0.0], [0.5, 0.0], [1.5, 0.0], [-0.5, 0.0]], dtype=torch.float64)
+AT_W = AT_SNAPSHOT + SHIFT  # grad U(w) = (2.5, 1); g~ = (2, 1)
+
+
+def test_estimator_variances_closed_form_with_table_gradients() -> None:
+    gradients = TableGradients([AT_SNAPSHOT, AT_W])
+    gradients.position = 1
+    estimator = SvrgGradient()
+    estimator.start(gradients)  # type: ignore[arg-type]
     probes = [torch.tensor([0]), torch.tensor([3])]
-    diagnostic = estimator_variances(table(at_w), table(at_snapshot), at_snapshot.mean(0), probes)
-    # grad U(w) = (2, 1). sgd errors: (1, 0) - (2, 1) -> 2 and (5, -2) - (2, 1) -> 18; mean 10.
-    # g~ = (1.5, 1); svrg = g~ + shift_i = (2, 1) and (1, 1): errors 0 and 1; mean 0.5.
-    assert diagnostic.sgd_variance == pytest.approx(10.0)
+    diagnostic = estimator_variances(estimator, gradients, probes)  # type: ignore[arg-type]
+    # grad U(w) = (2.5, 1). sgd: (1.5, 0) and (4.5, -2) -> errors 2 and 13; mean 7.5.
+    # svrg = g~ + shift_i = (2.5, 1) and (1.5, 1): errors 0 and 1; mean 0.5.
+    assert diagnostic.sgd_variance == pytest.approx(7.5)
     assert diagnostic.svrg_variance == pytest.approx(0.5)
-    assert diagnostic.ratio == pytest.approx(0.05)
+    assert diagnostic.ratio == pytest.approx(0.5 / 7.5)
+    assert diagnostic.estimator_error == pytest.approx(0.5)
+
+
+def test_sarah_recursion_on_tables_and_its_probe() -> None:
+    """Step 0 gives g~; step 1 at w_1 gives g~ + mean_I(grad(w_1) - grad(w_0)), hand-computed."""
+    gradients = TableGradients([AT_SNAPSHOT, AT_W])
+    sarah = SarahGradient()
+    sarah.start(gradients)  # type: ignore[arg-type]
+    assert torch.equal(sarah.estimate(torch.tensor([1])), torch.tensor([2.0, 1.0], dtype=torch.float64))
+    gradients.position = 1
+    # row 2: grad(w_1) - grad(w_0) = (1.5, 0): v_1 = (3.5, 1); a peek does not advance.
+    assert torch.equal(sarah.peek(torch.tensor([2])), torch.tensor([3.5, 1.0], dtype=torch.float64))
+    diagnostic = estimator_variances(sarah, gradients, [torch.tensor([0]), torch.tensor([2])])  # type: ignore[arg-type]
+    # v_1 candidates (2.5, 1) and (3.5, 1) against grad U(w_1) = (2.5, 1): errors 0 and 1.
+    assert diagnostic.estimator_error == pytest.approx(0.5)
+    assert torch.equal(sarah.estimate(torch.tensor([2])), torch.tensor([3.5, 1.0], dtype=torch.float64))
+    # Back at w_0 (a rejected step would not move; here the point changes): v_2 = v_1 + (row 3 at
+    # w_0 - row 3 at w_1) = (3.5, 1) + (0.5, 0).
+    gradients.position = 0
+    assert torch.equal(sarah.estimate(torch.tensor([3])), torch.tensor([4.0, 1.0], dtype=torch.float64))
+
+
+def test_storm_recursion_on_tables() -> None:
+    gradients = TableGradients([AT_SNAPSHOT, AT_W])
+    storm = StormGradient(momentum=0.25)
+    storm.start(gradients)  # type: ignore[arg-type]
+    assert torch.equal(storm.estimate(torch.tensor([0])), torch.tensor([2.0, 1.0], dtype=torch.float64))
+    gradients.position = 1
+    # d_1 = g_I(w_1) + 0.75 (d_0 - g_I(w_0)), I = {1}: (3.5, 2) + 0.75 ((2, 1) - (3, 2)) = (2.75, 1.25)
+    assert torch.equal(storm.estimate(torch.tensor([1])), torch.tensor([2.75, 1.25], dtype=torch.float64))
+
+
+def test_recursion_formulas() -> None:
+    previous, now, before = torch.tensor([1.0, 2.0]), torch.tensor([10.0, 20.0]), torch.tensor([3.0, 5.0])
+    torch.testing.assert_close(sarah_gradient(previous, now, before), torch.tensor([8.0, 17.0]))
+    # storm: now + (1 - a)(previous - before) with a = 0.5: (10, 20) + 0.5 (-2, -3)
+    torch.testing.assert_close(storm_gradient(previous, now, before, 0.5), torch.tensor([9.0, 18.5]))
+    torch.testing.assert_close(storm_gradient(previous, now, before, 1.0), now)
+
+
+RECURSIVE = {"sarah": SarahGradient, "storm": lambda: StormGradient(0.3)}
+
+
+@pytest.mark.parametrize("name", sorted(RECURSIVE))
+@pytest.mark.parametrize("kind", KINDS)
+def test_recursive_estimators_start_at_the_full_gradient(name: str, kind: Surrogate) -> None:
+    snapshot, batch = make_snapshot_and_batch(seed=5)
+    estimator, live = started(RECURSIVE[name](), snapshot, batch, kind)
+    estimate = estimator.estimate(random_minibatch(torch.Generator().manual_seed(1), 4))
+    torch.testing.assert_close(estimate, oracle(snapshot, batch, kind)(None), rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("name", sorted(RECURSIVE))
+def test_recursive_estimate_does_not_change_while_the_point_stays(name: str) -> None:
+    """w_j = w_{j-1} (a rejected step): SARAH's v_j = v_{j-1} exactly; STORM's d_j = d_{j-1} only
+    if d_{j-1} = g_I(w_{j-1}) - which d_0 = g~ is not, so STORM moves toward the mini-batch."""
+    snapshot, batch = make_snapshot_and_batch(seed=6)
+    estimator, live = started(RECURSIVE[name](), snapshot, batch, "ratio")
+    generator = torch.Generator().manual_seed(2)
+    estimator.estimate(random_minibatch(generator, 4))
+    move_to(live, perturbed_copy(snapshot, scale=0.1))
+    first = estimator.estimate(random_minibatch(generator, 4))
+    rows = random_minibatch(generator, 4)
+    second = estimator.estimate(rows)  # the live policy did not move
+    if name == "sarah":
+        assert torch.equal(first, second)
+    else:
+        expected = storm_gradient(first, estimator.gradients.at_current(rows),  # type: ignore[attr-defined]
+                                  estimator.gradients.at_current(rows), 0.3)  # type: ignore[attr-defined]
+        torch.testing.assert_close(second, expected, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("name", sorted(RECURSIVE))
+@pytest.mark.parametrize("kind", KINDS)
+def test_recursive_step_is_unbiased_given_an_exact_previous_estimate(name: str, kind: Surrogate) -> None:
+    """v_0 = g~ = grad U(w_0) exactly, so over a partition of mini-batches the mean of step 1's
+    estimate at w_1 is grad U(w_1) (for STORM: + (1 - a)(d_0 - grad U(w_0)) = 0)."""
+    snapshot, batch = make_snapshot_and_batch(seed=7)
+    estimator, live = started(RECURSIVE[name](), snapshot, batch, kind)
+    estimator.estimate(torch.arange(4))
+    moved = perturbed_copy(snapshot, scale=0.2)
+    move_to(live, moved)
+    minibatches = torch.randperm(N, generator=torch.Generator().manual_seed(8)).view(8, N // 8)
+    average = torch.stack([estimator.peek(rows) for rows in minibatches]).mean(dim=0)
+    full = oracle(moved, batch, kind)(None)
+    assert not torch.allclose(full, oracle(snapshot, batch, kind)(None), rtol=1e-2)
+    torch.testing.assert_close(average, full, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", sorted(RECURSIVE))
+def test_recursive_estimators_have_lower_error_than_sgd_near_the_snapshot(name: str) -> None:
+    snapshot, batch = make_snapshot_and_batch(seed=8)
+    estimator, live = started(RECURSIVE[name](), snapshot, batch, "ratio")
+    estimator.estimate(torch.arange(4))
+    move_to(live, perturbed_copy(snapshot, scale=1e-3))
+    generator = torch.Generator().manual_seed(9)
+    probes = [random_minibatch(generator, 6) for _ in range(60)]
+    diagnostic = estimator_variances(estimator, estimator.gradients, probes)  # type: ignore[attr-defined]
+    assert diagnostic.sgd_variance > 0
+    assert diagnostic.estimator_ratio < 0.1
+
+
+def test_storm_with_momentum_one_is_sgd_after_the_first_step() -> None:
+    snapshot, batch = make_snapshot_and_batch(seed=9)
+    storm, live = started(StormGradient(1.0), snapshot, batch, "ratio")
+    storm.estimate(torch.arange(4))
+    move_to(live, perturbed_copy(snapshot, scale=0.2))
+    rows = random_minibatch(torch.Generator().manual_seed(3), 6)
+    torch.testing.assert_close(storm.estimate(rows), oracle(live, batch, "ratio")(rows), rtol=0, atol=0)
+
+
+def test_a_non_finite_estimate_is_returned_but_not_carried() -> None:
+    gradients = TableGradients([AT_SNAPSHOT, AT_W, torch.full_like(AT_W, math.nan)])
+    sarah = SarahGradient()
+    sarah.start(gradients)  # type: ignore[arg-type]
+    sarah.estimate(torch.tensor([0]))
+    gradients.position = 2
+    assert not torch.isfinite(sarah.estimate(torch.tensor([0]))).all()
+    gradients.position = 1  # the recursion continues from v_0 at w_0, not from the NaN
+    assert torch.equal(sarah.estimate(torch.tensor([2])), torch.tensor([3.5, 1.0], dtype=torch.float64))
+
+
+def test_storm_momentum_must_be_in_the_unit_interval() -> None:
+    for bad in (0.0, -0.1, 1.5):
+        with pytest.raises(ValueError, match="momentum"):
+            StormGradient(bad)
 
 
 def test_variance_ratio_is_nan_when_sgd_variance_is_zero() -> None:
-    import math
-
-    assert math.isnan(VarianceDiagnostic(svrg_variance=0.0, sgd_variance=0.0).ratio)
-    assert VarianceDiagnostic(svrg_variance=1.0, sgd_variance=4.0).ratio == pytest.approx(0.25)
+    assert math.isnan(VarianceDiagnostic(svrg_variance=0.0, sgd_variance=0.0, estimator_error=0.0).ratio)
+    diagnostic = VarianceDiagnostic(svrg_variance=1.0, sgd_variance=4.0, estimator_error=2.0)
+    assert diagnostic.ratio == pytest.approx(0.25)
+    assert diagnostic.estimator_ratio == pytest.approx(0.5)
 
 
 def test_svrg_gradient_formula() -> None:
@@ -157,35 +318,33 @@ def test_svrg_gradient_formula() -> None:
     )
 
 
-def test_gradient_estimator_dispatch() -> None:
-    calls: list[tuple[str, object]] = []
-    indices = torch.tensor([2, 4])
+def test_each_estimator_reads_what_its_formula_names() -> None:
+    gradients = TableGradients([AT_SNAPSHOT, AT_W])
+    gradients.position = 1
+    rows = torch.tensor([0, 2])
+    expected = {  # at w_1 with I = {0, 2}: g_I(w_1) = (1, 2), g_I(w~) = (0, 2), g~ = (2, 1)
+        FullGradient: torch.tensor([2.5, 1.0]), MinibatchGradient: torch.tensor([1.0, 2.0]),
+        SvrgGradient: torch.tensor([3.0, 1.0]),
+    }
+    for kind, value in expected.items():
+        estimator = kind()
+        estimator.start(gradients)  # type: ignore[arg-type]
+        torch.testing.assert_close(estimator.estimate(rows), value.double())
+    assert not FullGradient.uses_minibatches and SvrgGradient.uses_minibatches
 
-    def current(idx: torch.Tensor | None) -> torch.Tensor:
-        calls.append(("current", None if idx is None else idx.tolist()))
-        return torch.tensor([100.0, 0.0]) if idx is None else torch.tensor([10.0, 1.0])
 
-    def snapshot(idx: torch.Tensor | None) -> torch.Tensor:
-        calls.append(("snapshot", None if idx is None else idx.tolist()))
-        return torch.tensor([4.0, 3.0])
-
-    g_tilde = torch.tensor([1.0, 1.0])
-    full = GradientEstimator("full", current, snapshot, g_tilde).estimate(indices)
-    assert torch.equal(full, torch.tensor([100.0, 0.0]))
-    assert calls == [("current", None)]
-
-    calls.clear()
-    sgd = GradientEstimator("sgd", current, snapshot, g_tilde).estimate(indices)
-    assert torch.equal(sgd, torch.tensor([10.0, 1.0]))
-    assert calls == [("current", [2, 4])]
-
-    calls.clear()
-    svrg = GradientEstimator("svrg", current, snapshot, g_tilde).estimate(indices)
-    assert torch.equal(svrg, torch.tensor([1.0 + 10.0 - 4.0, 1.0 + 1.0 - 3.0]))
-    assert sorted(calls) == [("current", [2, 4]), ("snapshot", [2, 4])]
-
-    with pytest.raises(ValueError):
-        GradientEstimator("adam", current, snapshot, g_tilde).estimate(indices)  # type: ignore[arg-type]
+def test_config_names_build_the_matching_estimator() -> None:
+    config = make_preset("svrpo", "Hopper-v5", "laptop")
+    names = ("sgd", "svrg", "sarah", "storm")
+    built = {name: estimator_for(config.replace(estimator=name)) for name in names}
+    built["full"] = estimator_for(make_preset("trpo", "Hopper-v5", "laptop"))
+    classes = {"full": FullGradient, "sgd": MinibatchGradient, "svrg": SvrgGradient,
+               "sarah": SarahGradient, "storm": StormGradient}
+    assert {name: type(e) for name, e in built.items()} == classes
+    storm = estimator_for(config.replace(estimator="storm", storm_momentum=0.4))
+    assert isinstance(storm, StormGradient) and storm.momentum == 0.4
+    for estimator in built.values():
+        assert isinstance(estimator, GradientEstimator)  # the runtime protocol
 
 
 def test_ratio_and_loglik_gradients_agree_at_the_old_policy_only() -> None:

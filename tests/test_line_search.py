@@ -101,7 +101,7 @@ def test_restores_parameters_exactly_when_every_trial_fails() -> None:
     start_copy = start.clone()
     trials = [(-1.0, 0.0), (5.0, 1.0), (float("nan"), 0.0), (1.0, float("nan")), (0.0, 0.0)]
     result, scripted = run(start, step, trials, start_objective=0.0, max_kl=0.01, ratio=0.8)
-    assert result == LineSearchResult(False, 0.0, 5, 0.0, 0.0)
+    assert result == LineSearchResult(False, 0.0, 5, 0.0, 0.0, objective=0.0)  # U at the restored start
     assert len(scripted.evaluated_at) == 5
     assert torch.equal(scripted.parameters, start_copy)
     assert torch.equal(start, start_copy)  # the caller's start tensor is not modified
@@ -169,6 +169,7 @@ def test_accepts_exactly_the_first_admissible_trial(
         assert result.step_fraction == ratio**first
         assert result.kl == trials[first][1]
         assert result.improvement == trials[first][0] - start_objective
+        assert result.objective == trials[first][0]  # U at the accepted point
         assert len(scripted.evaluated_at) == first + 1
         torch.testing.assert_close(scripted.parameters, START + ratio**first * STEP)
     else:

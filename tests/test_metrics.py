@@ -11,7 +11,13 @@ from torch.func import functional_call, grad, hessian, jacrev, vmap
 from svrpo.objectives import mean_kl_from
 from svrpo.parameters import flat_parameters, set_flat_parameters
 from svrpo.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
-from svrpo.trust_region.metrics import fisher_vector_product, max_step_length, search_direction
+from svrpo.trust_region.metrics import (
+    DirectionMetric,
+    FisherMetric,
+    IdentityMetric,
+    fisher_vector_product,
+    max_step_length,
+)
 
 OBS_DIM, ACT_DIM, HIDDEN = 3, 2, (4,)
 
@@ -197,7 +203,7 @@ def test_identity_direction_is_the_gradient() -> None:
     def fail(v: torch.Tensor) -> torch.Tensor:
         raise AssertionError("the identity metric must not call the Fisher product")
 
-    direction, result = search_direction("identity", g, fail, cg_iters=10, residual_tol=1e-10)
+    direction, result = IdentityMetric().direction(g, fail)
     assert torch.equal(direction, g)
     assert result is None
     direction.add_(1.0)  # a copy, not the gradient itself
@@ -212,7 +218,7 @@ def test_fisher_direction_solves_the_natural_gradient_system(
     size = fisher.shape[0]
     product = fisher_vector_product(policy, obs, damping=damping)
     g = torch.randn(size, generator=torch.Generator().manual_seed(14), dtype=torch.float64)
-    direction, result = search_direction("fisher", g, product, cg_iters=size, residual_tol=1e-24)
+    direction, result = FisherMetric(cg_iters=size, residual_tol=1e-24).direction(g, product)
     damped = fisher + damping * torch.eye(size, dtype=torch.float64)
     expected = torch.linalg.solve(damped, g)
     assert result is not None
@@ -220,9 +226,9 @@ def test_fisher_direction_solves_the_natural_gradient_system(
     torch.testing.assert_close(damped @ direction, g, rtol=1e-6, atol=1e-8)
 
 
-def test_unknown_metric_raises() -> None:
-    with pytest.raises(ValueError):
-        search_direction("euclid", torch.ones(2), lambda v: v, 1, 0.0)  # type: ignore[arg-type]
+def test_both_metrics_meet_the_protocol() -> None:
+    assert isinstance(FisherMetric(10, 1e-10), DirectionMetric)
+    assert isinstance(IdentityMetric(), DirectionMetric)
 
 
 def test_max_step_length_closed_form() -> None:

@@ -9,6 +9,7 @@ normaliser's moments and the baseline's mini-batch generator must all survive a 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import itertools
 import json
 import math
@@ -37,7 +38,7 @@ from svrpo import algorithm, checkpoint, cli, update
 from svrpo.algorithm import build_run, train
 from svrpo.baselines import MlpValueFunction
 from svrpo.config import Config, ConfigError, coerce_field, field_names, make_preset
-from svrpo.estimators import GradientEstimator
+from svrpo.estimators import BatchGradients, SvrgGradient
 from svrpo.parameters import flat_parameters
 from svrpo.run_lock import LockedError
 from svrpo.sampling import Sampler
@@ -175,25 +176,37 @@ def test_ctrl_c_writes_a_checkpoint_exits_130_and_resume_ends_identical(
     _assert_same_run(run_dir, reference)
 
 
-def test_ctrl_c_during_an_update_saves_the_iteration_before_it(reference: Path, tmp_path: Path,
-                                                               monkeypatch: pytest.MonkeyPatch) -> None:
-    """The saved state must be a copy: iteration 3's in-place update must not leak into it."""
-    real_update = algorithm.update_policy
-    calls = itertools.count(1)
+class _InterruptMidUpdate(SvrgGradient):
+    """SVRG that raises Ctrl-C in iteration `at` once an accepted inner step has moved the
+    policy in place (the second estimate of that iteration)."""
 
-    def update_then_interrupt(*args: Any, **kwargs: Any) -> Any:
-        stats = real_update(*args, **kwargs)
-        if next(calls) == 3:
+    def __init__(self, at: int) -> None:
+        self.at, self.iterations, self.estimates = at, 0, 0
+        self.moved_before_interrupt = False
+
+    def start(self, gradients: BatchGradients) -> None:
+        super().start(gradients)
+        self.iterations, self.estimates = self.iterations + 1, 0
+        self.snapshot_point = gradients.current_point()
+
+    def estimate(self, indices: torch.Tensor) -> torch.Tensor:
+        self.estimates += 1
+        if self.iterations == self.at and self.estimates == 2:
+            moved = not torch.equal(self.gradients.current_point(), self.snapshot_point)
+            self.moved_before_interrupt = moved
             raise KeyboardInterrupt
-        return stats
+        return super().estimate(indices)
 
-    monkeypatch.setattr(algorithm, "update_policy", update_then_interrupt)
+
+def test_ctrl_c_during_an_update_saves_the_iteration_before_it(reference: Path, tmp_path: Path) -> None:
+    """The saved state must be a copy: iteration 3's in-place update must not leak into it."""
     config = CONFIG.replace(checkpoint_every=100)
+    interrupting = _InterruptMidUpdate(at=3)
     with pytest.raises(KeyboardInterrupt):
-        train(config, tmp_path / "run", show_progress=False)
+        train(config, tmp_path / "run", show_progress=False, estimator=interrupting)
+    assert interrupting.moved_before_interrupt  # the policy had really changed in place
     saved = checkpoint.list_checkpoints(tmp_path / "run" / "checkpoints")
     assert [p.name for p in saved] == ["iter_000002.pt"]
-    monkeypatch.setattr(algorithm, "update_policy", real_update)
     train(config, tmp_path / "run", resume=True, show_progress=False)
     _assert_same_run(tmp_path / "run", reference)
 
@@ -457,22 +470,30 @@ def test_an_update_that_makes_parameters_non_finite_is_undone_and_counted(
     """Whatever slips past update_policy's own guards: the whole update of that batch is undone."""
     calls = itertools.count(1)
 
-    def poison_on_second_call(real: Callable[..., Any], target: Callable[[Any], torch.Tensor]) -> Any:
-        def wrapped(*args: Any, **kwargs: Any) -> Any:
-            result = real(*args, **kwargs)
+    class PoisonPolicyInSecondUpdate(SvrgGradient):
+        """SVRG that fills the policy's log-std with NaN at the start of iteration 2's update:
+        every line search then fails, and the NaN is left in the parameters."""
+
+        def start(self, gradients: BatchGradients) -> None:
+            super().start(gradients)
             if next(calls) == 2:
                 with torch.no_grad():
-                    target(args).fill_(math.nan)
-            return result
-        return wrapped
+                    gradients.policy.log_std.fill_(math.nan)
 
+    estimator = None
     if part == "policy":
-        monkeypatch.setattr(algorithm, "update_policy",
-                            poison_on_second_call(algorithm.update_policy, lambda args: args[0].log_std))
+        estimator = PoisonPolicyInSecondUpdate()
     else:
-        monkeypatch.setattr(MlpValueFunction, "fit", poison_on_second_call(
-            MlpValueFunction.fit, lambda args: args[0].network[0].weight))
-    train(_numerics_config(ENV), tmp_path, show_progress=False)
+        real_fit = MlpValueFunction.fit
+
+        def fit_then_poison(self: MlpValueFunction, *args: Any) -> None:
+            real_fit(self, *args)
+            if next(calls) == 2:
+                with torch.no_grad():
+                    self.network[0].weight.fill_(math.nan)
+
+        monkeypatch.setattr(MlpValueFunction, "fit", fit_then_poison)
+    train(_numerics_config(ENV), tmp_path, show_progress=False, estimator=estimator)
     assert [r["nonfinite_batches"] for r in progress_rows(tmp_path)] == ["0", "1", "1"]
     err = capsys.readouterr().err
     assert f"iteration 2: the update made the {part} non-finite; restored the parameters" in err
@@ -494,14 +515,20 @@ def test_inner_steps_with_bad_curvature_or_gradient_are_skipped_counted_and_chan
     finally:
         run.sampler.close()
     data, _, _ = algorithm.surrogate_batch(run, batch)
+    parts = run.parts
     if fault == "nan gradient":
         nan_gradient = torch.full_like(flat_parameters(run.policy), math.nan)
-        monkeypatch.setattr(GradientEstimator, "estimate", lambda self, indices: nan_gradient)
+
+        class NanGradient(SvrgGradient):
+            def estimate(self, indices: torch.Tensor) -> torch.Tensor:
+                return nan_gradient
+
+        parts = dataclasses.replace(parts, estimator=NanGradient())
     else:
         sign = -1.0 if fault == "negative curvature" else math.nan
-        monkeypatch.setattr(update, "fisher_vector_product", lambda *args: (lambda v: sign * v))
+        parts = dataclasses.replace(parts, fisher_product=lambda *args: (lambda v: sign * v))
     before = flat_parameters(run.policy)
-    stats = update.update_policy(run.policy, data, config, torch.Generator().manual_seed(0),
+    stats = update.update_policy(run.policy, data, parts, torch.Generator().manual_seed(0),
                                  torch.Generator().manual_seed(1))
     column = "skipped_nonfinite_gradient" if fault == "nan gradient" else "skipped_curvature"
     assert getattr(stats, column) == config.inner_steps and stats.inner_steps_accepted == 0

@@ -114,9 +114,9 @@ def test_bad_sweep_input_one_line_exit_2_nothing_written(
 
 
 def test_load_spec_errors_are_spec_errors() -> None:
-    with pytest.raises(SpecError, match="figure1, figure2, figure3"):
+    with pytest.raises(SpecError, match="figure1, figure2, figure3, estimators"):
         load_spec("nothing")
-    assert set(NAMED_EXPERIMENTS) == {"figure1", "figure2", "figure3"}
+    assert set(NAMED_EXPERIMENTS) == {"figure1", "figure2", "figure3", "estimators"}
 
 
 def test_local_backend_fits_sampling_workers_into_cores() -> None:

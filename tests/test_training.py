@@ -11,6 +11,7 @@ from svrpo.algorithm import build_run, surrogate_batch, train
 from svrpo.config import make_preset
 from svrpo.objectives import mean_kl_from
 from svrpo.parameters import flat_parameters, set_flat_parameters
+from svrpo.parts import update_parts
 from svrpo.update import update_policy
 from tests.helpers import progress_rows, without_clock
 
@@ -36,7 +37,7 @@ def test_update_stays_in_trust_region(preset: str, anchor: str) -> None:
         batch = run.sampler.sample(run.policy.snapshot(), config.batch_size)
         data, _, _ = surrogate_batch(run, batch)
         before = flat_parameters(run.policy)
-        stats = update_policy(run.policy, data, config, torch.Generator().manual_seed(0),
+        stats = update_policy(run.policy, data, run.parts, torch.Generator().manual_seed(0),
                               torch.Generator().manual_seed(1))
     finally:
         run.sampler.close()
@@ -156,7 +157,7 @@ def test_inner_stop_rule_decides_how_many_inner_steps_run() -> None:
         results = {}
         for name in ("all", "failed_search"):
             set_flat_parameters(run.policy, start)
-            stats = update_policy(run.policy, data, config.replace(inner_stop=name),
+            stats = update_policy(run.policy, data, update_parts(config.replace(inner_stop=name)),
                                   torch.Generator().manual_seed(0), torch.Generator().manual_seed(1))
             results[name] = stats
     finally:

@@ -20,15 +20,17 @@ failed search mid-loop, ...), so no case can pass vacuously.
 from __future__ import annotations
 
 import math
+import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import pytest
 import torch
 
-from svrpo.config import Config, make_preset
+from svrpo.config import Config, Estimator, make_preset
 from svrpo.objectives import SurrogateBatch
 from svrpo.parameters import flat_parameters, set_flat_parameters
+from svrpo.parts import update_parts
 from svrpo.policy import GaussianMlpPolicy
 from svrpo.trust_region.metrics import fisher_vector_product
 from svrpo.update import UpdateStats, update_policy
@@ -248,6 +250,20 @@ def trust_region_anchor(anchor: str, w: torch.Tensor, rows: Rows) -> tuple[torch
         return policy_mean(w, rows.observations), policy_log_std(w)
 
 
+def recursive_estimate(config: Config, w: torch.Tensor, previous: tuple[torch.Tensor, torch.Tensor] | None,
+                       snapshot_gradient: torch.Tensor, sampled: Rows) -> torch.Tensor:
+    """sarah: v_0 = g~, v_j = v_{j-1} + grad U_I(w_j) - grad U_I(w_{j-1});
+    storm: d_0 = g~, d_j = grad U_I(w_j) + (1 - a)(d_{j-1} - grad U_I(w_{j-1}))."""
+    if previous is None:
+        return snapshot_gradient.clone()
+    w_previous, estimate = previous
+    now = surrogate_gradient(w, sampled, config.surrogate)
+    before = surrogate_gradient(w_previous, sampled, config.surrogate)
+    if config.estimator == "sarah":
+        return estimate + now - before
+    return now + (1 - config.storm_momentum) * (estimate - before)
+
+
 def reference_update(start: torch.Tensor, rows: Rows, config: Config, seed: int) -> Reference:
     """Algorithm 1, lines 5-12, from the config's definitions (see the module docstring)."""
     generator = torch.Generator().manual_seed(seed)
@@ -260,13 +276,18 @@ def reference_update(start: torch.Tensor, rows: Rows, config: Config, seed: int)
     snapshot_gradient = surrogate_gradient(snapshot, rows, config.surrogate)  # g~ on all N rows
 
     trace, w = Trace(), start.clone()
+    previous: tuple[torch.Tensor, torch.Tensor] | None = None  # (w_{j-1}, estimate_{j-1}): sarah, storm
     for step in range(config.inner_steps):
         trace.attempted += 1
         # The same two draws, in the same order, as update_policy: mini-batch, then Fisher subset.
         minibatch = draw_rows(count, minibatch_size, generator)
         fisher_rows = draw_rows(count, fisher_size, generator)
-        gradient = gradient_estimate(config.estimator, w, snapshot, snapshot_gradient, rows, minibatch,
-                                     config.surrogate)
+        if config.estimator in ("sarah", "storm"):
+            gradient = recursive_estimate(config, w, previous, snapshot_gradient, rows.subset(minibatch))
+            previous = (w.clone(), gradient)
+        else:
+            gradient = gradient_estimate(config.estimator, w, snapshot, snapshot_gradient, rows, minibatch,
+                                         config.surrogate)
         # This step's metric: the Fisher of pi_{w_j} (not of w~) on this step's own fresh subset.
         damped_fisher = fisher_matrix(w, rows.observations[fisher_rows]) + damping
         direction = search_direction(config.metric, gradient, damped_fisher)
@@ -405,6 +426,10 @@ SCENARIOS = [
               MOVED | {"kl_rejection", "improvement_rejection", "continued_after_failure"}),
     _scenario("sgd", "identity", "loglik", "iterate", "failed_search",
               MOVED | {"improvement_rejection", "stopped_early"}),
+    _scenario("sarah", "fisher", "ratio", "sampling", "all", MOVED),
+    _scenario("sarah", "identity", "loglik", "iterate", "failed_search", MOVED),
+    _scenario("storm", "fisher", "ratio", "iterate", "all", MOVED, storm_momentum=0.3),
+    _scenario("storm", "fisher", "loglik", "sampling", "failed_search", MOVED, storm_momentum=0.7),
     # TRPO (rllab's backtracking 0.8 x 15, here 0.8 x 3 so that the first trial is rejected).
     _scenario("full", "fisher", "ratio", "sampling", "all", {"accepted", "backtrack", "kl_rejection"},
               seed=1, max_kl=0.2, backtrack_ratio=0.8, max_backtracks=3),
@@ -428,7 +453,8 @@ def run_library(scenario: Scenario) -> LibraryRun:
     rows = sampled_rows(flat_parameters(policy), scenario.seed + 1)
     generator = torch.Generator().manual_seed(scenario.seed + 2)
     probe_generator = torch.Generator().manual_seed(scenario.seed + 3)
-    stats = update_policy(policy, surrogate_batch(rows), scenario.config, generator, probe_generator)
+    stats = update_policy(policy, surrogate_batch(rows), update_parts(scenario.config), generator,
+                          probe_generator)
     return LibraryRun(stats, flat_parameters(policy), generator.get_state())
 
 
@@ -462,7 +488,7 @@ def test_update_matches_reference(scenario: Scenario) -> None:
 
 def test_scenarios_cover_every_option_and_event() -> None:
     """Each value of each ablation field, and each event the mistakes hinge on, is in some case."""
-    options = {"estimator": {"svrg", "sgd", "full"}, "metric": {"fisher", "identity"},
+    options = {"estimator": set(typing.get_args(Estimator)), "metric": {"fisher", "identity"},
                "surrogate": {"ratio", "loglik"}, "kl_anchor": {"sampling", "iterate"},
                "inner_stop": {"all", "failed_search"}}
     for name, values in options.items():
@@ -480,7 +506,8 @@ def test_variance_probe_does_not_change_the_update() -> None:
     assert torch.equal(on.parameters, off.parameters)
     assert torch.equal(on.generator_state, off.generator_state)
     assert math.isfinite(on.stats.variance_ratio) and math.isnan(off.stats.variance_ratio)  # it did run
-    probe_fields = {"svrg_variance", "sgd_variance", "variance_ratio"}
+    probe_fields = {"svrg_variance", "sgd_variance", "variance_ratio", "estimator_error",
+                    "estimator_variance_ratio"}
     training = {k: v for k, v in vars(on.stats).items() if k not in probe_fields}
     assert training == {k: v for k, v in vars(off.stats).items() if k not in probe_fields}
 

@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import csv
 import json
-import platform
 import shutil
-import sys
 import time
 from dataclasses import dataclass
 from enum import Enum
@@ -22,6 +20,7 @@ from svrpo.atomic import write_text_atomic
 from svrpo.config import Config, differing_fields
 from svrpo.experiments.specs import ExperimentSpec, SpecError
 from svrpo.run_files import foreign_entries
+from svrpo.run_record import write_config, write_meta
 
 
 class RunStatus(str, Enum):
@@ -167,14 +166,9 @@ def adopt(job: RunJob, source: Path) -> None:
 def prepare(job: RunJob) -> None:
     """Create the run directory with config.json and run.json (kept if already there)."""
     job.run_dir.mkdir(parents=True, exist_ok=True)
-    config_path = job.run_dir / "config.json"
-    if not config_path.is_file():
-        write_text_atomic(config_path, job.config.to_json() + "\n")
-    meta_path = job.run_dir / "run.json"
-    if not meta_path.is_file():
-        meta = {"preset": job.preset, "scale": job.scale, "experiment": job.experiment,
-                "argv": sys.argv[1:], "python": platform.python_version()}
-        write_text_atomic(meta_path, json.dumps(meta, indent=2) + "\n")
+    if not (job.run_dir / "config.json").is_file():
+        write_config(job.run_dir, job.config)
+    write_meta(job.run_dir, job.preset, job.scale, keep_existing=True, experiment=job.experiment)
 
 
 def execute(run_dir: Path) -> JobResult:

@@ -5,6 +5,8 @@ The named experiments are the paper's three figures (Xu, Liu, Peng, Section IV):
 * `figure1`: svrpo, svrpo-loglik (the authors' code's surrogate) and trpo on the six tasks;
 * `figure2`: svrpo, svrpo-sgd (SGD in place of SVRG) and trpo on Swimmer and Walker2d;
 * `figure3`: svrpo, svrpo-identity (no Fisher preconditioning) and trpo on Swimmer and Walker2d.
+* `estimators`: svrpo, svrpo-sarah, svrpo-storm and trpo on Hopper and Walker2d (not in the
+  paper: the two recursive variance-reduced estimators inside the same trust region).
 
 A YAML spec has the same fields (`name`, `tasks`, `presets`, `seeds`, `scale`, optional
 `overrides`), e.g.::
@@ -90,6 +92,9 @@ NAMED_EXPERIMENTS: dict[str, ExperimentSpec] = {
     "figure2": ExperimentSpec("figure2", ("Swimmer-v5", "Walker2d-v5"), ("svrpo", "svrpo-sgd", "trpo")),
     "figure3": ExperimentSpec(
         "figure3", ("Swimmer-v5", "Walker2d-v5"), ("svrpo", "svrpo-identity", "trpo")
+    ),
+    "estimators": ExperimentSpec(
+        "estimators", ("Hopper-v5", "Walker2d-v5"), ("svrpo", "svrpo-sarah", "svrpo-storm", "trpo")
     ),
 }
 

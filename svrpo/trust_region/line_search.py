@@ -23,6 +23,8 @@ class LineSearchResult:
     """U(accepted) - U(start) (0.0 when rejected)."""
     kl: float
     """Mean KL of the accepted point (0.0 when rejected)."""
+    objective: float
+    """U at the parameters the search leaves: the accepted trial's, or start_objective."""
 
 
 def backtracking_line_search(
@@ -47,6 +49,6 @@ def backtracking_line_search(
         objective, kl = evaluate()
         improvement = objective - start_objective
         if math.isfinite(objective) and math.isfinite(kl) and improvement > 0 and kl <= max_kl:
-            return LineSearchResult(True, fraction, k + 1, improvement, kl)
+            return LineSearchResult(True, fraction, k + 1, improvement, kl, objective)
     set_parameters(start)
-    return LineSearchResult(False, 0.0, max_backtracks, 0.0, 0.0)
+    return LineSearchResult(False, 0.0, max_backtracks, 0.0, 0.0, start_objective)

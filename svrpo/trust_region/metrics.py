@@ -3,17 +3,20 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import torch
 from torch import nn
 
-from svrpo.config import Metric
 from svrpo.objectives import mean_kl_from
 from svrpo.parameters import flat_gradient
 from svrpo.policy import GaussianMlpPolicy
 from svrpo.trust_region.conjugate_gradient import CgResult, conjugate_gradient
 
 MatVec = Callable[[torch.Tensor], torch.Tensor]
+Direction = tuple[torch.Tensor, CgResult | None]
+"""(search direction s, the CG result if a solve was run, else None)."""
 
 
 def fisher_vector_product(
@@ -112,20 +115,33 @@ def _linear_layers(policy: GaussianMlpPolicy) -> list[nn.Linear] | None:
     return layers if len(actual) == len(expected) and set(actual) == expected else None
 
 
-def search_direction(
-    metric: Metric,
-    gradient: torch.Tensor,
-    fisher_product: MatVec,
-    cg_iters: int,
-    residual_tol: float,
-) -> tuple[torch.Tensor, CgResult | None]:
-    """s = F^{-1} g by CG (`fisher`), or s = g (`identity`); returns (s, CG result or None)."""
-    if metric == "fisher":
-        result = conjugate_gradient(fisher_product, gradient, cg_iters, residual_tol)
+@runtime_checkable
+class DirectionMetric(Protocol):
+    """Turns a gradient estimate into a search direction s (its length is set by the KL model)."""
+
+    def direction(self, gradient: torch.Tensor, fisher_product: MatVec) -> Direction:
+        """(s, the CG result if a solve was run, else None)."""
+        ...
+
+
+@dataclass(frozen=True)
+class FisherMetric:
+    """s = F^{-1} g by conjugate gradient: the natural gradient."""
+
+    cg_iters: int
+    residual_tol: float
+
+    def direction(self, gradient: torch.Tensor, fisher_product: MatVec) -> Direction:
+        result = conjugate_gradient(fisher_product, gradient, self.cg_iters, self.residual_tol)
         return result.solution, result
-    if metric == "identity":
+
+
+@dataclass(frozen=True)
+class IdentityMetric:
+    """s = g: no preconditioning (the paper's Fig. 3 ablation); the step length still uses F."""
+
+    def direction(self, gradient: torch.Tensor, fisher_product: MatVec) -> Direction:
         return gradient.clone(), None
-    raise ValueError(f"unknown metric {metric!r}")
 
 
 def max_step_length(direction: torch.Tensor, fisher_product: MatVec, max_kl: float) -> float | None:
