@@ -24,7 +24,9 @@ else
   $SVRPO sweep figure1 --scale modern --tasks Hopper-v5,Walker2d-v5 --jobs 2 $COMMON
 fi
 
-# 2. The paper's ablations at laptop scale (svrpo and trpo runs are shared with figure1).
+# 2. SARAH and STORM next to SVRG and TRPO (issue 13), then the paper's ablations, at laptop
+#    scale (the svrpo and trpo runs are shared with figure1's).
+$SVRPO sweep estimators --scale laptop --jobs 2 $COMMON
 $SVRPO sweep figure2 --scale laptop --jobs 2 $COMMON
 $SVRPO sweep figure3 --scale laptop --jobs 2 $COMMON
 
