@@ -41,7 +41,7 @@ def one_point(batch_size: int, hidden: tuple[int, ...]) -> dict[str, Any]:
     try:
         run_iteration(run)
         tic = time.perf_counter()
-        row = run_iteration(run)
+        row = run_iteration(run).progress_row()
         seconds = time.perf_counter() - tic
     finally:
         run.sampler.close()

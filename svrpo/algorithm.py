@@ -14,13 +14,11 @@ the last completed iteration is checkpointed.
 from __future__ import annotations
 
 import contextlib
-import copy
 import math
 import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 import torch
@@ -30,32 +28,20 @@ from svrpo.advantages import generalized_advantages, standardize
 from svrpo.allocator import keep_freed_memory
 from svrpo.atomic import write_text_atomic
 from svrpo.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction, explained_variance
-from svrpo.config import Config, ConfigError
+from svrpo.config import Config
+from svrpo.errors import TrainingError
 from svrpo.estimators import GradientEstimator
 from svrpo.logging import RunLogger, truncate_progress
 from svrpo.normalization import RunningMeanStd
 from svrpo.objectives import SurrogateBatch, old_log_prob
 from svrpo.parts import UpdateParts, update_parts
 from svrpo.policy import GaussianMlpPolicy
-from svrpo.policy_snapshot import PolicySnapshot
 from svrpo.run_lock import exclusive_writer, record_holder
 from svrpo.run_record import write_config
-from svrpo.sampling import Batch, Sampler, WorkerDiedError
+from svrpo.sampling.policy_snapshot import PolicySnapshot
+from svrpo.sampling.restarting import RestartingSampler
+from svrpo.sampling.sampler import Batch, Sampler
 from svrpo.update import UpdateStats, update_policy
-
-MAX_SAMPLER_RESTARTS = 3
-"""Fresh worker sets tried for one sampler call whose workers keep dying, before the run stops."""
-
-# Fields that fix the shapes of the saved tensors or the sampler layout: a checkpoint written
-# with other values cannot be loaded into this run. (total_steps may change: that extends a run.)
-_MUST_MATCH = ("env_id", "hidden_sizes", "baseline", "baseline_hidden_sizes", "normalize_observations",
-               "num_workers", "envs_per_worker")
-
-_T = TypeVar("_T")
-
-
-class TrainingError(RuntimeError):
-    """The run cannot go on (e.g. sampling workers keep dying); its last iteration is checkpointed."""
 
 
 class WriteFailedError(TrainingError):
@@ -70,7 +56,8 @@ class Run:
     policy: GaussianMlpPolicy
     baseline: Baseline
     normalizer: RunningMeanStd | None
-    sampler: Sampler
+    sampler: RestartingSampler
+    """Replaces its workers when one dies; get_state() is the state after the last batch."""
     parts: UpdateParts
     """The policy update's estimator, metric, KL anchor and stopping rule, built from config."""
     generator: torch.Generator
@@ -79,18 +66,12 @@ class Run:
     """Variance-probe mini-batches only (so the probe does not change training)."""
     baseline_generator: torch.Generator | None = None
     """Mini-batch order of the `mlp` baseline's fit (None for `linear`)."""
-    sampler_state: dict[str, Any] = field(default_factory=dict)
-    """Sampler.get_state() after the last completed sample(): where restarted workers resume."""
     iteration: int = 0
     env_steps: int = 0
     wall_time: float = 0.0
     nonfinite_batches: int = 0
     """Batches whose update was refused: non-finite data, or an update that made parameters
     non-finite (then undone)."""
-    sampler_restarts: int = 0
-    """Worker sets replaced after a worker died (this process only; not checkpointed)."""
-    notes: list[str] = field(default_factory=list)
-    """Warnings raised during the current iteration; train() prints and clears them."""
 
 
 def _seeded(seed: int) -> torch.Generator:
@@ -113,7 +94,7 @@ def build_run(config: Config, estimator: GradientEstimator | None = None) -> Run
     """
     torch.set_num_threads(config.torch_threads)
     keep_freed_memory()  # the update reuses large buffers: no page faults per allocation
-    sampler = make_sampler(config)
+    sampler = RestartingSampler(lambda: make_sampler(config))
     info = sampler.info
     torch.manual_seed(config.seed)
     policy = GaussianMlpPolicy(info.obs_dim, info.act_dim, config.hidden_sizes, config.init_log_std)
@@ -142,7 +123,6 @@ def build_run(config: Config, estimator: GradientEstimator | None = None) -> Run
         generator=_seeded(config.seed + 1),
         probe_generator=_seeded(config.seed + 3),
         baseline_generator=baseline_generator,
-        sampler_state=sampler.get_state(),
     )
 
 
@@ -184,152 +164,143 @@ def _nonfinite(named: dict[str, torch.Tensor]) -> list[str]:
     return [name for name, tensor in named.items() if not bool(torch.isfinite(tensor).all())]
 
 
-def _learned_state_views(run: Run) -> dict[str, Any]:
-    """State dicts of everything an update changes: policy, baseline (with its optimizer), normaliser.
-
-    These share storage with the live parameters; _learned_state copies them.
-    """
-    return {
-        "policy": run.policy.state_dict(),
-        "baseline": run.baseline.state_dict(),
-        "normalizer": None if run.normalizer is None else run.normalizer.state_dict(),
-    }
-
-
-def _learned_state(run: Run) -> dict[str, Any]:
-    """Deep copies of _learned_state_views: unaffected by later in-place updates."""
-    return copy.deepcopy(_learned_state_views(run))
-
-
-def _load_learned_state(run: Run, saved: dict[str, Any]) -> None:
-    run.policy.load_state_dict(saved["policy"])
-    run.baseline.load_state_dict(saved["baseline"])
-    if run.normalizer is not None:
-        run.normalizer.load_state_dict(saved["normalizer"])
-
-
 def _nonfinite_learned_state(run: Run) -> list[str]:
     """Which of policy, baseline and normaliser hold a non-finite number (optimizer state included)."""
-    return [name for name, state in _learned_state_views(run).items() if checkpoint.nonfinite_tensors(state)]
+    return [name for name, state in checkpoint.learned_state_views(run).items()
+            if checkpoint.nonfinite_tensors(state)]
 
 
-def _with_workers(run: Run, call: Callable[[Sampler], _T], iteration: int) -> _T:
-    """call(run.sampler); when a worker has died, restart the workers and repeat the call.
+@dataclass(frozen=True)
+class UpdateOutcome:
+    """What the update step of one iteration did (None stats: the batch was refused)."""
 
-    The fresh workers are set to run.sampler_state, which is the state before the failed call
-    had any effect (sampling records its new state only once the whole batch is in hand), so
-    the repeated call returns exactly what the undisturbed one would have: never a short batch,
-    nor one mixing old and new workers. After MAX_SAMPLER_RESTARTS failed restarts the run stops
-    with TrainingError. An error *raised* inside a worker is not retried: it would recur.
-    `iteration` only labels the warnings.
-    """
-    failure = ""
-    for attempt in range(MAX_SAMPLER_RESTARTS + 1):
-        try:
-            if attempt > 0:
-                run.sampler.close()
-                run.sampler = make_sampler(run.config)
-                run.sampler.set_state(run.sampler_state)
-                run.sampler_restarts += 1
-            return call(run.sampler)
-        except WorkerDiedError as error:
-            failure = str(error).split(";")[0]  # the rest is advice meant for direct Sampler users
-            if attempt < MAX_SAMPLER_RESTARTS:
-                run.notes.append(f"warning: iteration {iteration}: {failure}; restarting the sampling "
-                                 "workers from the last recorded state and repeating the call")
-    run.sampler.close()
-    raise TrainingError(
-        f"sampling workers died {MAX_SAMPLER_RESTARTS + 1} times in a row in iteration {iteration}; "
-        f"giving up (last: {failure})"
+    stats: UpdateStats | None
+    explained_variance: float
+    """Of the baseline values the advantages used (nan when the batch was refused)."""
+    warning: str | None
+
+
+@dataclass(frozen=True)
+class IterationResult:
+    """One outer iteration, as train() logs it (`progress_row`) and prints it (`warnings`)."""
+
+    iteration: int
+    env_steps: int
+    wall_time: float
+    batch: Batch
+    update: UpdateOutcome
+    eval_return: float
+    entropy: float
+    action_std: float
+    nonfinite_batches: int
+    time_sampling: float
+    time_update: float
+    warnings: tuple[str, ...]
+    """In the order they arose: sampler restarts, a refused or undone update, evaluation restarts."""
+
+    def progress_row(self) -> dict[str, Any]:
+        """The progress.csv row (column order fixed: earlier runs' files stay comparable)."""
+        returns, stats = self.batch.episode_returns, self.update.stats
+        row: dict[str, Any] = {
+            "iteration": self.iteration,
+            "env_steps": self.env_steps,
+            "wall_time": self.wall_time,
+            "average_return": float(returns.mean()) if returns.size else math.nan,
+            "eval_return": self.eval_return,
+            "episodes": int(returns.size),
+            "episode_length": float(self.batch.episode_lengths.mean()) if returns.size else math.nan,
+            "entropy": self.entropy,
+            "action_std": self.action_std,
+            "baseline_explained_variance": self.update.explained_variance,
+            "nonfinite_batches": self.nonfinite_batches,
+        }
+        if stats is None:
+            row.update({key: math.nan for key in UpdateStats.__dataclass_fields__})
+            row["accept_rate"] = math.nan
+        else:
+            row.update(asdict(stats))
+            row["accept_rate"] = stats.inner_steps_accepted / stats.inner_steps_attempted
+        row["time_sampling"] = self.time_sampling
+        row["time_update"] = self.time_update
+        row["steps_per_second"] = self.batch.num_steps / self.time_sampling
+        return row
+
+
+def run_iteration(run: Run) -> IterationResult:
+    """One outer iteration of Algorithm 1 (DESIGN.md's decisions); see the module docstring."""
+    label = f"iteration {run.iteration + 1}"
+    run.sampler.label = label
+    started = time.perf_counter()
+    batch = run.sampler.sample(snapshot_of(run), run.config.batch_size)  # N steps with w~
+    sampled = time.perf_counter()
+    warnings = _drain(run.sampler.warnings)
+    data, targets, values = surrogate_batch(run, batch)  # GAE with the current baseline
+    update = update_and_refit(run, batch, data, targets, values, label)  # g~, J steps, refit V
+    updated = time.perf_counter()
+    run.iteration += 1
+    run.env_steps += batch.num_steps
+    eval_return = evaluate_if_due(run)
+    run.wall_time += time.perf_counter() - started
+    return IterationResult(
+        iteration=run.iteration, env_steps=run.env_steps, wall_time=run.wall_time, batch=batch,
+        update=update, eval_return=eval_return, entropy=float(run.policy.entropy().detach()),
+        action_std=float(run.policy.log_std.detach().exp().mean()),
+        nonfinite_batches=run.nonfinite_batches, time_sampling=sampled - started,
+        time_update=updated - sampled,
+        warnings=(*warnings, *([update.warning] if update.warning else []), *_drain(run.sampler.warnings)),
     )
 
 
-def _sample(run: Run) -> Batch:
-    """Exactly N steps with the current policy; records the sampler state that follows them."""
-    snapshot = snapshot_of(run)
-
-    def sample_and_record(sampler: Sampler) -> tuple[Batch, dict[str, Any]]:
-        batch = sampler.sample(snapshot, run.config.batch_size)
-        return batch, sampler.get_state()
-
-    batch, run.sampler_state = _with_workers(run, sample_and_record, run.iteration + 1)
-    return batch
+def _drain(pending: list[str]) -> list[str]:
+    taken = list(pending)
+    pending.clear()
+    return taken
 
 
-def run_iteration(run: Run) -> dict[str, Any]:
-    """One outer iteration; returns the progress.csv row (the caller logs it, and run.notes)."""
-    config = run.config
-    started = time.perf_counter()
-    batch = _sample(run)
-    sampled = time.perf_counter()
+def update_and_refit(run: Run, batch: Batch, data: SurrogateBatch, targets: torch.Tensor,
+                     values: torch.Tensor, label: str) -> UpdateOutcome:
+    """The policy update (Algorithm 1, lines 5-12) and the baseline refit, guarded.
 
-    data, targets, values = surrogate_batch(run, batch)
-    stats: UpdateStats | None = None
-    explained = math.nan
+    Non-finite data never reaches the parameters (the update is skipped); an update that leaves
+    any parameter non-finite is undone as a whole, the baseline's and normaliser's included.
+    Both are counted in run.nonfinite_batches and reported in the outcome's warning.
+    """
     bad_data = _nonfinite({
         "observations": batch.observations, "actions": batch.actions, "rewards": batch.rewards,
         "advantages": data.advantages, "value targets": targets,
     })
     if bad_data:
-        # Non-finite data never reaches the parameters: keep the last good policy, count it.
         run.nonfinite_batches += 1
-        run.notes.append(f"warning: iteration {run.iteration + 1}: non-finite {', '.join(bad_data)} "
-                         "in the batch; update skipped, parameters kept")
-    else:
-        before = _learned_state(run)
-        stats = update_policy(run.policy, data, run.parts, run.generator, run.probe_generator)
-        explained = explained_variance(values, targets)  # of the values the advantages used
-        if run.normalizer is not None:
-            run.normalizer.update(batch.observations)
-        # Refit after the update (rllab order), in the coordinates of the next prediction: the
-        # normaliser's new statistics, which stay fixed until the next fit.
-        run.baseline.fit(_policy_inputs(run, batch.observations), batch.timesteps, targets)
-        # update_policy guards its own steps; this catches whatever slips through (and the
-        # baseline's and normaliser's updates), undoing the whole update rather than patching it.
-        broken = _nonfinite_learned_state(run)
-        if broken:
-            _load_learned_state(run, before)
-            run.nonfinite_batches += 1
-            run.notes.append(f"warning: iteration {run.iteration + 1}: the update made the "
-                             f"{', '.join(broken)} non-finite; restored the parameters from before it")
-    updated = time.perf_counter()
+        return UpdateOutcome(None, math.nan, f"warning: {label}: non-finite {', '.join(bad_data)} "
+                                             "in the batch; update skipped, parameters kept")
+    before = checkpoint.learned_state(run)
+    stats = update_policy(run.policy, data, run.parts, run.generator, run.probe_generator)
+    explained = explained_variance(values, targets)  # of the values the advantages used
+    if run.normalizer is not None:
+        run.normalizer.update(batch.observations)
+    # Refit after the update (rllab order), in the coordinates of the next prediction: the
+    # normaliser's new statistics, which stay fixed until the next fit.
+    run.baseline.fit(_policy_inputs(run, batch.observations), batch.timesteps, targets)
+    # update_policy guards its own steps; this catches whatever slips through (and the
+    # baseline's and normaliser's updates), undoing the whole update rather than patching it.
+    broken = _nonfinite_learned_state(run)
+    if not broken:
+        return UpdateOutcome(stats, explained, None)
+    checkpoint.load_learned_state(run, before)
+    run.nonfinite_batches += 1
+    return UpdateOutcome(stats, explained, f"warning: {label}: the update made the {', '.join(broken)} "
+                                           "non-finite; restored the parameters from before it")
 
-    run.iteration += 1
-    run.env_steps += batch.num_steps
-    eval_return = math.nan
+
+def evaluate_if_due(run: Run) -> float:
+    """Mean deterministic return over eval_episodes every eval_every iterations and at the end
+    (the same start states every time); nan when not due."""
+    config = run.config
     last = run.iteration == config.iterations
-    if config.eval_every and (run.iteration % config.eval_every == 0 or last):
-        eval_seed = config.seed + 1_000_003  # the same start states at every evaluation
-        snapshot = snapshot_of(run)
-        eval_return = float(np.mean(
-            _with_workers(run, lambda s: s.evaluate(snapshot, config.eval_episodes, eval_seed), run.iteration)
-        ))
-    run.wall_time += time.perf_counter() - started
-
-    episode_returns = batch.episode_returns
-    row: dict[str, Any] = {
-        "iteration": run.iteration,
-        "env_steps": run.env_steps,
-        "wall_time": run.wall_time,
-        "average_return": float(episode_returns.mean()) if episode_returns.size else math.nan,
-        "eval_return": eval_return,
-        "episodes": int(episode_returns.size),
-        "episode_length": float(batch.episode_lengths.mean()) if episode_returns.size else math.nan,
-        "entropy": float(run.policy.entropy().detach()),
-        "action_std": float(run.policy.log_std.detach().exp().mean()),
-        "baseline_explained_variance": explained,
-        "nonfinite_batches": run.nonfinite_batches,
-    }
-    if stats is None:
-        row.update({key: math.nan for key in UpdateStats.__dataclass_fields__})
-    else:
-        row.update(asdict(stats))
-        row["accept_rate"] = stats.inner_steps_accepted / stats.inner_steps_attempted
-    row.setdefault("accept_rate", math.nan)
-    row["time_sampling"] = sampled - started
-    row["time_update"] = updated - sampled
-    row["steps_per_second"] = batch.num_steps / (sampled - started)
-    return row
+    if not config.eval_every or not (run.iteration % config.eval_every == 0 or last):
+        return math.nan
+    eval_seed = config.seed + 1_000_003  # the same start states at every evaluation
+    return float(np.mean(run.sampler.evaluate(snapshot_of(run), config.eval_episodes, eval_seed)))
 
 
 def snapshot_of(run: Run) -> PolicySnapshot:
@@ -337,71 +308,6 @@ def snapshot_of(run: Run) -> PolicySnapshot:
     if run.normalizer is None:
         return run.policy.snapshot()
     return run.policy.snapshot(run.normalizer.mean, run.normalizer.std)
-
-
-def capture_state(run: Run, progress_csv: str = "") -> dict[str, Any]:
-    """Everything the next iteration needs, as tensors and plain values (no pickled objects).
-
-    `progress_csv` is the text of progress.csv once this iteration's row is logged: a resume
-    writes it back, so the file holds exactly the rows up to the checkpoint whatever happened
-    to it since (a cut header, a lost middle row, rows logged after the checkpoint).
-
-    Copies, not views: the state of iteration k must not change while iteration k + 1 updates
-    the parameters in place (Ctrl-C during that update saves this state).
-    """
-    return {
-        "format": checkpoint.FORMAT,
-        "config": run.config.to_json(),
-        "iteration": run.iteration,
-        "env_steps": run.env_steps,
-        "wall_time": run.wall_time,
-        "nonfinite_batches": run.nonfinite_batches,
-        "progress_rows": run.iteration,  # progress.csv holds one row per completed iteration
-        "progress_csv": progress_csv,
-        **_learned_state(run),
-        "generator": run.generator.get_state(),
-        "probe_generator": run.probe_generator.get_state(),
-        "baseline_generator": None if run.baseline_generator is None else run.baseline_generator.get_state(),
-        # Nothing in the loop draws from the global generators today; saved so that nothing
-        # added later can silently break resume.
-        "torch_rng": torch.get_rng_state(),
-        "numpy_rng": np.random.get_state(),
-        "sampler": copy.deepcopy(run.sampler_state),
-    }
-
-
-def restore_state(run: Run, state: dict[str, Any], source: Path) -> None:
-    """Load capture_state output into a freshly built run; CheckpointError if it does not fit."""
-    try:
-        saved = Config.from_json(state["config"])
-    except (ConfigError, ValueError, TypeError, KeyError) as error:
-        raise checkpoint.CheckpointError(
-            f"{source} holds no readable config: {checkpoint.one_line(error)}"
-        ) from None
-    for name in _MUST_MATCH:
-        if getattr(saved, name) != getattr(run.config, name):
-            raise checkpoint.CheckpointError(
-                f"{source} was written with {name}={getattr(saved, name)!r}, "
-                f"this run has {name}={getattr(run.config, name)!r}"
-            )
-    try:
-        _load_learned_state(run, state)
-        run.generator.set_state(state["generator"])
-        run.probe_generator.set_state(state["probe_generator"])
-        if run.baseline_generator is not None:
-            run.baseline_generator.set_state(state["baseline_generator"])
-        torch.set_rng_state(state["torch_rng"])
-        np.random.set_state(state["numpy_rng"])
-        run.sampler.set_state(state["sampler"])
-        run.sampler_state = state["sampler"]
-        run.iteration = int(state["iteration"])
-        run.env_steps = int(state["env_steps"])
-        run.wall_time = float(state["wall_time"])
-        run.nonfinite_batches = int(state["nonfinite_batches"])
-    except (RuntimeError, ValueError, KeyError, TypeError, AttributeError, AssertionError) as error:
-        raise checkpoint.CheckpointError(
-            f"{source} does not fit this run: {type(error).__name__}: {checkpoint.one_line(error)}"
-        ) from None
 
 
 def _resume(run: Run, run_dir: Path) -> list[str]:
@@ -413,7 +319,7 @@ def _resume(run: Run, run_dir: Path) -> list[str]:
         _restore_progress(progress, "")
         return ["no checkpoint to resume from: starting at iteration 0"]
     state, path, warnings = checkpoint.load_latest(directory)
-    restore_state(run, state, path)
+    checkpoint.restore_state(run, state, path)
     notes = [f"warning: {warning}" for warning in warnings]
     notes.append(f"resuming from {path} (iteration {run.iteration})")
     if "progress_csv" in state:
@@ -481,16 +387,15 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
         for note in notes:
             logger.message(note)
         record_holder(run_dir)  # from here on this process writes the run
-        last_state = capture_state(run, progress.read_text() if progress.exists() else "")
+        last_state = checkpoint.capture_state(run, progress.read_text() if progress.exists() else "")
         saved_iteration = run.iteration if resume else -1
         try:
             while run.iteration < config.iterations:
-                row = run_iteration(run)
-                for note in run.notes:  # before the row: a kill right after it loses no warning
-                    logger.message(note)
-                run.notes.clear()
-                logger.log(row)
-                last_state = capture_state(run, progress.read_text())
+                result = run_iteration(run)
+                for warning in result.warnings:  # before the row: a kill right after it loses none
+                    logger.message(warning)
+                logger.log(result.progress_row())
+                last_state = checkpoint.capture_state(run, progress.read_text())
                 if run.iteration % config.checkpoint_every == 0 or run.iteration == config.iterations:
                     checkpoint.save_atomic(last_state, checkpoint.checkpoint_path(checkpoints, run.iteration))
                     checkpoint.prune(checkpoints)
@@ -503,8 +408,8 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
             raise WriteFailedError(f"cannot write {error.filename or run_dir}: {error.strerror or error}; "
                                    f"stopped, {kept}; free space, then resume") from None
         except BaseException as error:
-            for note in run.notes:
-                logger.message(note)
+            for warning in _drain(run.sampler.warnings):  # restarts before the failure
+                logger.message(warning)
             # The interrupted iteration may be half done; the last completed one is consistent.
             done = last_state["iteration"]
             if done not in (0, saved_iteration):

@@ -33,12 +33,12 @@ import numpy as np
 import torch
 
 from svrpo.arguments import OneLineParser
-from svrpo.envs import EnvError, env_info, is_mujoco_task, make_env, scale_action
 from svrpo.estimators import BatchGradients, VarianceDiagnostic
 from svrpo.parts import UpdateParts
 from svrpo.policy import GaussianMlpPolicy
-from svrpo.policy_snapshot import PolicySnapshot
-from svrpo.sampling import Batch, Sampler, steps_per_env
+from svrpo.sampling.envs import EnvError, env_info, is_mujoco_task, make_env, scale_action
+from svrpo.sampling.policy_snapshot import PolicySnapshot
+from svrpo.sampling.sampler import Batch, Sampler, steps_per_env
 
 _FULL_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS  # what mujoco.rollout's initial_state holds
 
@@ -182,7 +182,7 @@ def sampling_cpu_efficiency(
     ratio is the steadier measure of how much of a worker's work is physics. Same replay method
     as sampling_vs_physics; the worker is the one a Sampler runs in each process (E envs).
     """
-    from svrpo.rollout_worker import RolloutWorker
+    from svrpo.sampling.rollout_worker import RolloutWorker
 
     worker = RolloutWorker(env_id, envs, seed, 0)
     try:
@@ -402,7 +402,7 @@ def trained_snapshot(env_id: str, iterations: int, seed: int = 0) -> tuple[Polic
     config = make_preset("trpo", env_id, "laptop").replace(seed=seed, eval_every=0)
     run = build_run(config)
     try:
-        rows = [run_iteration(run) for _ in range(iterations)]
+        rows = [run_iteration(run).progress_row() for _ in range(iterations)]
     finally:
         run.sampler.close()
     record = {

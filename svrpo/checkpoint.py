@@ -10,15 +10,21 @@ next older checkpoint, so one damaged file costs at most `checkpoint_every` iter
 
 from __future__ import annotations
 
+import copy
 import pickle
 import re
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 import torch
 
 from svrpo.atomic import replace_atomically
+from svrpo.config import Config, ConfigError
+
+if TYPE_CHECKING:
+    from svrpo.algorithm import Run
 
 
 class CheckpointError(RuntimeError):
@@ -26,7 +32,7 @@ class CheckpointError(RuntimeError):
 
 
 FORMAT = 2
-"""Version of the checkpoint layout written by algorithm.capture_state (2: RNG states of torch,
+"""Version of the checkpoint layout written by capture_state (2: RNG states of torch,
 NumPy and the MLP baseline's generator added; format-1 files cannot resume bit-exactly)."""
 
 _REQUIRED_KEYS = {"format", "config", "iteration"}
@@ -63,7 +69,7 @@ def from_storable(value: Any) -> Any:
     return value
 
 
-def save_atomic(state: dict[str, Any], path: Path) -> None:
+def save_atomic(state: Mapping[str, Any], path: Path) -> None:
     """Write `state` to `path` via a fsynced temporary file and an atomic rename."""
     storable = to_storable(state)
     replace_atomically(path, lambda handle: torch.save(storable, handle))
@@ -190,3 +196,128 @@ def prune(directory: Path, keep: int = 3) -> None:
     """Delete all but the `keep` newest checkpoints."""
     for path in list_checkpoints(directory)[keep:]:
         path.unlink(missing_ok=True)
+
+
+# --- what a checkpoint holds -----------------------------------------------------------------
+
+# Fields that fix the shapes of the saved tensors or the sampler layout: a checkpoint written
+# with other values cannot be loaded into this run. (total_steps may change: that extends a run.)
+MUST_MATCH = ("env_id", "hidden_sizes", "baseline", "baseline_hidden_sizes", "normalize_observations",
+              "num_workers", "envs_per_worker")
+
+
+class RunState(TypedDict):
+    """A checkpoint: everything the next iteration of a run needs, tensors and plain values only."""
+
+    format: int
+    config: str
+    """The run's config.json text."""
+    iteration: int
+    env_steps: int
+    wall_time: float
+    nonfinite_batches: int
+    progress_rows: int
+    """Rows of progress.csv the checkpoint covers (one per completed iteration)."""
+    progress_csv: str
+    """The text of progress.csv at the checkpoint (a resume writes it back)."""
+    policy: dict[str, Any]
+    baseline: dict[str, Any]
+    """The baseline's state dict, its optimizer's included."""
+    normalizer: dict[str, Any] | None
+    generator: torch.Tensor
+    probe_generator: torch.Tensor
+    baseline_generator: torch.Tensor | None
+    torch_rng: torch.Tensor
+    numpy_rng: tuple[Any, ...]
+    sampler: dict[str, Any]
+    """RestartingSampler.get_state(): every env's state after the last completed batch."""
+
+
+def learned_state_views(run: Run) -> dict[str, Any]:
+    """State dicts of everything an update changes: policy, baseline (with its optimizer), normaliser.
+
+    These share storage with the live parameters; learned_state copies them.
+    """
+    return {
+        "policy": run.policy.state_dict(),
+        "baseline": run.baseline.state_dict(),
+        "normalizer": None if run.normalizer is None else run.normalizer.state_dict(),
+    }
+
+
+def learned_state(run: Run) -> dict[str, Any]:
+    """Deep copies of learned_state_views: unaffected by later in-place updates."""
+    return copy.deepcopy(learned_state_views(run))
+
+
+def load_learned_state(run: Run, saved: dict[str, Any]) -> None:
+    run.policy.load_state_dict(saved["policy"])
+    run.baseline.load_state_dict(saved["baseline"])
+    if run.normalizer is not None:
+        run.normalizer.load_state_dict(saved["normalizer"])
+
+
+def capture_state(run: Run, progress_csv: str = "") -> RunState:
+    """Everything the next iteration needs, as tensors and plain values (no pickled objects).
+
+    `progress_csv` is the text of progress.csv once this iteration's row is logged: a resume
+    writes it back, so the file holds exactly the rows up to the checkpoint whatever happened
+    to it since (a cut header, a lost middle row, rows logged after the checkpoint).
+
+    Copies, not views: the state of iteration k must not change while iteration k + 1 updates
+    the parameters in place (Ctrl-C during that update saves this state).
+    """
+    return {
+        "format": FORMAT,
+        "config": run.config.to_json(),
+        "iteration": run.iteration,
+        "env_steps": run.env_steps,
+        "wall_time": run.wall_time,
+        "nonfinite_batches": run.nonfinite_batches,
+        "progress_rows": run.iteration,  # progress.csv holds one row per completed iteration
+        "progress_csv": progress_csv,
+        **learned_state(run),  # type: ignore[typeddict-item]
+        "generator": run.generator.get_state(),
+        "probe_generator": run.probe_generator.get_state(),
+        "baseline_generator": None if run.baseline_generator is None else run.baseline_generator.get_state(),
+        # Nothing in the loop draws from the global generators today; saved so that nothing
+        # added later can silently break resume.
+        "torch_rng": torch.get_rng_state(),
+        "numpy_rng": np.random.get_state(),
+        "sampler": copy.deepcopy(run.sampler.get_state()),
+    }
+
+
+def restore_state(run: Run, state: dict[str, Any], source: Path) -> None:
+    """Load capture_state output into a freshly built run; CheckpointError if it does not fit."""
+    try:
+        saved = Config.from_json(state["config"])
+    except (ConfigError, ValueError, TypeError, KeyError) as error:
+        raise CheckpointError(
+            f"{source} holds no readable config: {one_line(error)}"
+        ) from None
+    for name in MUST_MATCH:
+        if getattr(saved, name) != getattr(run.config, name):
+            raise CheckpointError(
+                f"{source} was written with {name}={getattr(saved, name)!r}, "
+                f"this run has {name}={getattr(run.config, name)!r}"
+            )
+    try:
+        load_learned_state(run, state)
+        run.generator.set_state(state["generator"])
+        run.probe_generator.set_state(state["probe_generator"])
+        if run.baseline_generator is not None:
+            run.baseline_generator.set_state(state["baseline_generator"])
+        torch.set_rng_state(state["torch_rng"])
+        np.random.set_state(state["numpy_rng"])
+        run.sampler.set_state(state["sampler"])
+        run.iteration = int(state["iteration"])
+        run.env_steps = int(state["env_steps"])
+        run.wall_time = float(state["wall_time"])
+        run.nonfinite_batches = int(state["nonfinite_batches"])
+    except (RuntimeError, ValueError, KeyError, TypeError, AttributeError, AssertionError) as error:
+        raise CheckpointError(
+            f"{source} does not fit this run: {type(error).__name__}: {one_line(error)}"
+        ) from None
+
+

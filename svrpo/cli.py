@@ -18,12 +18,12 @@ from svrpo.arguments import CommandLineError, OneLineParser
 from svrpo.checkpoint import CheckpointError
 from svrpo.checkpoint import one_line as checkpoint_one_line
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, field_names, make_preset
-from svrpo.envs import EnvError, check_import_allowed, env_info
 from svrpo.evaluation import EvaluationError
 from svrpo.experiments.specs import SpecError
 from svrpo.run_files import clear_run, holds_anything, is_run_directory
 from svrpo.run_lock import LockedError, exclusive_writer
 from svrpo.run_record import write_config, write_meta
+from svrpo.sampling.envs import EnvError, check_import_allowed, env_info
 
 if TYPE_CHECKING:
     from svrpo.experiments.backends import Backend

@@ -24,8 +24,8 @@ import numpy as np
 
 from svrpo import checkpoint
 from svrpo.config import Config
-from svrpo.envs import check_import_allowed, env_info, horizon, make_env, registered_id, scale_action
-from svrpo.policy_snapshot import PolicySnapshot
+from svrpo.sampling.envs import check_import_allowed, env_info, horizon, make_env, registered_id, scale_action
+from svrpo.sampling.policy_snapshot import PolicySnapshot
 
 GL_BACKENDS = ("egl", "osmesa")
 """Tried in this order unless MUJOCO_GL is set: EGL (GPU, or Mesa's software renderer without
@@ -148,7 +148,7 @@ def run_episodes(policy: LoadedPolicy, episodes: int, seed: int, env: gym.Env | 
                  on_step: OnStep | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(returns, lengths) of `episodes` mean-action episodes, episode k reset with seed + k.
 
-    `env` defaults to the training env (svrpo.envs.make_env); `on_step(env, step)` is called after
+    `env` defaults to the training env (svrpo.sampling.envs.make_env); `on_step(env, step)` is called after
     each reset (step 0) and each env step (for rendering).
     """
     config = policy.config

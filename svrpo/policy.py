@@ -8,7 +8,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from svrpo.policy_snapshot import PolicySnapshot
+from svrpo.sampling.policy_snapshot import PolicySnapshot
 
 
 class GaussianMlpPolicy(nn.Module):

@@ -6,7 +6,7 @@ N/E steps each per iteration, step k falls in iteration ceil(k / (N/E)) of every
 poisoned iteration is known in advance and the same in every run.
 
 Spawned sampling workers start with a fresh registry: give them the id in gymnasium's
-"module:EnvName" form, "tests.nan_envs:NanRewardPendulum-v0", which svrpo.envs.make_env imports
+"module:EnvName" form, "tests.nan_envs:NanRewardPendulum-v0", which svrpo.sampling.envs.make_env imports
 first; the bare id works in-process (num_workers=0) once this module is imported.
 """
 

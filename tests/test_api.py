@@ -105,7 +105,7 @@ def test_every_config_field_is_documented() -> None:
 
 
 def test_an_env_factory_workers_cannot_import_is_refused_before_anything_runs(tmp_path: Path) -> None:
-    from svrpo.envs import EnvError
+    from svrpo.sampling.envs import EnvError
 
     config = svrpo.make_preset("trpo", "InvertedPendulum-v5", "laptop")
 

@@ -32,7 +32,7 @@ from svrpo.config import Config, make_preset
 from svrpo.normalization import RunningMeanStd
 from svrpo.objectives import SurrogateBatch
 from svrpo.policy import GaussianMlpPolicy
-from svrpo.sampling import Batch
+from svrpo.sampling.sampler import Batch
 
 GAMMA = 0.5
 LAMBDA = 0.5
@@ -332,7 +332,7 @@ def recorded_run() -> dict[str, Any]:
             starts.append(copy.deepcopy({"normalizer": run.normalizer, "baseline": recorder.inner,
                                          "policy": run.policy}))
             event_marks.append(len(recorder.events))
-            rows.append(algorithm.run_iteration(run))
+            rows.append(algorithm.run_iteration(run).progress_row())
         event_marks.append(len(recorder.events))
     finally:
         run.sampler.close()

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from svrpo import checkpoint
-from svrpo.algorithm import build_run, capture_state, restore_state
-from svrpo.checkpoint import CheckpointError
+from svrpo.algorithm import build_run
+from svrpo.checkpoint import CheckpointError, capture_state, restore_state
 from svrpo.config import make_preset
 from svrpo.logging import RunLogger, read_progress, truncate_progress
 

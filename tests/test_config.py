@@ -20,7 +20,7 @@ from svrpo.config import (
     make_preset,
     validate,
 )
-from svrpo.envs import horizon
+from svrpo.sampling.envs import horizon
 
 TASKS = ("Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
 # DESIGN.md: per-task (m, J) and iteration count at paper scale.

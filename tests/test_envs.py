@@ -1,4 +1,4 @@
-"""Tests for svrpo.envs: construction errors, env_info, action scaling, exact state restore."""
+"""Tests for svrpo.sampling.envs: construction errors, env_info, action scaling, exact state restore."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from svrpo.envs import (
+from svrpo.sampling.envs import (
     DEFAULT_HORIZON,
     EnvError,
     env_info,

@@ -13,7 +13,7 @@ import torch
 
 from svrpo.parameters import flat_parameters, set_flat_parameters
 from svrpo.policy import GaussianMlpPolicy
-from svrpo.rollout_worker import RolloutWorker
+from svrpo.sampling.rollout_worker import RolloutWorker
 from svrpo.trust_region.metrics import autograd_fisher_vector_product, fisher_vector_product
 
 

@@ -41,7 +41,8 @@ from svrpo.config import Config, ConfigError, coerce_field, field_names, make_pr
 from svrpo.estimators import BatchGradients, SvrgGradient
 from svrpo.parameters import flat_parameters
 from svrpo.run_lock import LockedError
-from svrpo.sampling import Sampler
+from svrpo.sampling import restarting
+from svrpo.sampling.sampler import Sampler
 from tests.helpers import nested_equal, progress_rows, without_clock
 from tests.nan_envs import NAN_REWARD_ID
 
@@ -572,7 +573,7 @@ def test_dead_workers_are_replaced_and_the_run_is_unchanged(reference: Path, tmp
     monkeypatch.setattr(Sampler, "sample", _killing(Sampler.sample, lambda n: n == 3, mid_call=True))
     monkeypatch.setattr(Sampler, "evaluate", _killing(Sampler.evaluate, lambda n: n == 1, mid_call=False))
     run = train(CONFIG, tmp_path / "run", show_progress=False)
-    assert run.sampler_restarts == 2
+    assert run.sampler.restarts == 2
     err = capsys.readouterr().err
     assert err.count("iteration 3: sampling worker 1") == 2  # sampling, then evaluating iteration 3
     assert "restarting the sampling workers from the last recorded state" in err
@@ -582,7 +583,7 @@ def test_dead_workers_are_replaced_and_the_run_is_unchanged(reference: Path, tmp
 def test_workers_that_keep_dying_stop_the_run_clearly_then_resume_loses_nothing(
         reference: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
-    monkeypatch.setattr(algorithm, "MAX_SAMPLER_RESTARTS", 1)
+    monkeypatch.setattr(restarting, "MAX_RESTARTS", 1)
     monkeypatch.setattr(Sampler, "sample", _killing(Sampler.sample, lambda call: call >= 3, mid_call=False))
     run_dir = tmp_path / "run"
     assert cli.main(_cli_args(run_dir, checkpoint_every=100)) == 1

@@ -1,4 +1,4 @@
-"""Tests for svrpo.sampling and svrpo.rollout_worker: layout, episode bookkeeping, determinism,
+"""Tests for svrpo.sampling and svrpo.sampling.rollout_worker: layout, episode bookkeeping, determinism,
 worker processes and their failure paths."""
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ import pytest
 import torch
 
 from svrpo.policy import GaussianMlpPolicy
-from svrpo.policy_snapshot import PolicySnapshot
-from svrpo.rollout_worker import first_episode_cuts
-from svrpo.sampling import Batch, Sampler, steps_per_env
+from svrpo.sampling.policy_snapshot import PolicySnapshot
+from svrpo.sampling.rollout_worker import first_episode_cuts
+from svrpo.sampling.sampler import Batch, Sampler, steps_per_env
 
 
 def _snapshot(obs_dim: int, act_dim: int, seed: int = 0) -> PolicySnapshot:
@@ -238,7 +238,7 @@ def test_killed_worker_raises_clear_error() -> None:
 
 
 def test_worker_module_does_not_import_torch() -> None:
-    code = "import sys, svrpo.rollout_worker; assert 'torch' not in sys.modules, 'torch imported'"
+    code = "import sys, svrpo.sampling.rollout_worker; assert 'torch' not in sys.modules, 'torch imported'"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     subprocess.run([sys.executable, "-c", code], check=True, env=env, timeout=60)
 

@@ -184,3 +184,19 @@ def test_any_box_task_trains_and_resumes_exactly(env_id: str, tmp_path: Path) ->
     rows = progress_rows(tmp_path / "full")
     assert len(rows) == 4 and all(row["mean_kl"] for row in rows)
     assert without_clock(progress_rows(tmp_path / "part")) == without_clock(rows)
+
+
+@pytest.mark.parametrize("preset", ["svrpo-sarah", "svrpo-storm"])
+def test_recursive_estimator_presets_run_on_all_six_paper_tasks(preset: str, tmp_path: Path) -> None:
+    """Two small iterations on each paper task (in-process sampling): the inner steps run and are
+    accepted, the probe reports the estimator's own error, nothing is skipped as non-finite."""
+    from svrpo.experiments.specs import PAPER_TASKS
+
+    for env_id in PAPER_TASKS:
+        config = _small(preset, env_id, batch_size=400, minibatch_size=100, total_steps=800,
+                        num_workers=0, eval_every=0, hidden_sizes=(16, 16))
+        train(config, tmp_path / env_id, show_progress=False)
+        rows = progress_rows(tmp_path / env_id)
+        assert len(rows) == 2, env_id
+        assert all(int(r["inner_steps_accepted"]) >= 1 for r in rows), (env_id, rows)
+        assert all(r["estimator_error"] and r["skipped_nonfinite_gradient"] == "0" for r in rows), env_id

@@ -1,4 +1,4 @@
-"""svrpo.vector_step against Gymnasium: the same observations, rewards, terminations and
+"""svrpo.sampling.vector_step against Gymnasium: the same observations, rewards, terminations and
 truncations, bit for bit, on the same states (resets and time limits included)."""
 
 from __future__ import annotations
@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from svrpo.envs import make_env, scale_action
-from svrpo.vector_step import TASKS, VectorStep
+from svrpo.sampling.envs import make_env, scale_action
+from svrpo.sampling.vector_step import TASKS, VectorStep
 
 # Wide actions (clipped to the box) make the walkers fall, so terminations and resets occur.
 _STEPS = {"Humanoid-v5": 150, "Ant-v5": 200}
@@ -65,7 +65,7 @@ def test_worker_batch_replays_through_gymnasium(env_id: str) -> None:
     import torch
 
     from svrpo.policy import GaussianMlpPolicy
-    from svrpo.rollout_worker import RolloutWorker
+    from svrpo.sampling.rollout_worker import RolloutWorker
 
     num_envs, horizon, seed = 2, 30, 5
     env = make_env(env_id)

@@ -11,7 +11,6 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from svrpo.envs import env_info
 from svrpo.experiments.backends import Backend
 from svrpo.experiments.jobs import (
     JobResult,
@@ -25,6 +24,7 @@ from svrpo.experiments.jobs import (
 )
 from svrpo.experiments.specs import ExperimentSpec, SpecError
 from svrpo.run_lock import exclusive_writer, record_holder
+from svrpo.sampling.envs import env_info
 
 
 @dataclass(frozen=True)

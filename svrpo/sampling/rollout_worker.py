@@ -18,9 +18,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from svrpo.envs import get_env_state, make_env, scale_action, set_env_state
-from svrpo.policy_snapshot import PolicySnapshot
-from svrpo.vector_step import VectorStep
+from svrpo.sampling.envs import get_env_state, make_env, scale_action, set_env_state
+from svrpo.sampling.policy_snapshot import PolicySnapshot
+from svrpo.sampling.vector_step import VectorStep
 
 THREAD_ENV_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 """BLAS/OpenMP thread-count variables pinned to 1 in workers (one thread each measured fastest)."""

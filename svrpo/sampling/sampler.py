@@ -21,9 +21,9 @@ from typing import Any, NoReturn
 import numpy as np
 import torch
 
-from svrpo.envs import env_info
-from svrpo.policy_snapshot import PolicySnapshot
-from svrpo.rollout_worker import (
+from svrpo.sampling.envs import env_info
+from svrpo.sampling.policy_snapshot import PolicySnapshot
+from svrpo.sampling.rollout_worker import (
     THREAD_ENV_VARS,
     RolloutWorker,
     WorkerChunk,
