@@ -18,7 +18,7 @@ import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -130,7 +130,18 @@ def _policy_inputs(run: Run, observations: torch.Tensor) -> torch.Tensor:
     return observations if run.normalizer is None else run.normalizer.normalize(observations)
 
 
-def surrogate_batch(run: Run, batch: Batch) -> tuple[SurrogateBatch, torch.Tensor, torch.Tensor]:
+class PreparedBatch(NamedTuple):
+    """A batch made ready for the update (unpacks as data, targets, values)."""
+
+    data: SurrogateBatch
+    """Policy inputs, actions, (standardised) advantages and the sampling policy's record."""
+    targets: torch.Tensor
+    """(N,) value targets A_t + V(s_t) from the raw advantages (the baseline's next fit)."""
+    values: torch.Tensor
+    """(N,) V(s_t) the advantages used (for explained variance)."""
+
+
+def surrogate_batch(run: Run, batch: Batch) -> PreparedBatch:
     """Advantages and the sampling policy's record -> (SurrogateBatch, value targets, V(s_t)).
 
     The baseline's values are those it predicts now, in the coordinates it was fitted in (the
@@ -156,7 +167,7 @@ def surrogate_batch(run: Run, batch: Batch) -> tuple[SurrogateBatch, torch.Tenso
         advantages = standardize(advantages)
     log_prob, mean, log_std = old_log_prob(run.policy, inputs, batch.actions)
     data = SurrogateBatch(inputs, batch.actions, advantages, log_prob, mean, log_std)
-    return data, targets, values
+    return PreparedBatch(data, targets, values)
 
 
 def _nonfinite(named: dict[str, torch.Tensor]) -> list[str]:
@@ -234,8 +245,8 @@ def run_iteration(run: Run) -> IterationResult:
     batch = run.sampler.sample(snapshot_of(run), run.config.batch_size)  # N steps with w~
     sampled = time.perf_counter()
     warnings = _drain(run.sampler.warnings)
-    data, targets, values = surrogate_batch(run, batch)  # GAE with the current baseline
-    update = update_and_refit(run, batch, data, targets, values, label)  # g~, J steps, refit V
+    prepared = surrogate_batch(run, batch)  # GAE with the current baseline
+    update = update_and_refit(run, batch, prepared, label)  # g~, J inner steps, refit V
     updated = time.perf_counter()
     run.iteration += 1
     run.env_steps += batch.num_steps
@@ -257,14 +268,14 @@ def _drain(pending: list[str]) -> list[str]:
     return taken
 
 
-def update_and_refit(run: Run, batch: Batch, data: SurrogateBatch, targets: torch.Tensor,
-                     values: torch.Tensor, label: str) -> UpdateOutcome:
+def update_and_refit(run: Run, batch: Batch, prepared: PreparedBatch, label: str) -> UpdateOutcome:
     """The policy update (Algorithm 1, lines 5-12) and the baseline refit, guarded.
 
     Non-finite data never reaches the parameters (the update is skipped); an update that leaves
     any parameter non-finite is undone as a whole, the baseline's and normaliser's included.
     Both are counted in run.nonfinite_batches and reported in the outcome's warning.
     """
+    data, targets, values = prepared
     bad_data = _nonfinite({
         "observations": batch.observations, "actions": batch.actions, "rewards": batch.rewards,
         "advantages": data.advantages, "value targets": targets,
