@@ -224,3 +224,31 @@ def test_plot_refuses_an_unknown_metric_and_a_non_positive_window(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and flags[0] in err[0], err
     assert not (run / "learning_curve.png").exists()
+
+
+def test_recursive_estimators_get_a_figure_of_their_own_error(tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """estimator_error_ratio.png: only when an experiment holds a sarah or storm run, from the
+    estimator_variance_ratio column (figure2's report above has none)."""
+    without = tmp_path / "without"
+    write_experiment(without)
+    assert main(["plot", str(without)]) == 0
+    assert not (without / "figure2-laptop" / "estimator_error_ratio.png").exists()
+
+    root = tmp_path / "runs"
+    curve = list(10.0 * np.arange(1, ITERATIONS + 1))
+    for preset in ("svrpo", "svrpo-sarah", "trpo"):
+        ratios = None if preset == "trpo" else [0.5] * ITERATIONS
+        run_dir = write_run(root, "Hopper-v5", preset, 0, curve, ratios)
+        if preset != "trpo":
+            path = run_dir / "progress.csv"
+            rows = list(csv.reader(path.open(newline="")))
+            rows[0].append("estimator_variance_ratio")
+            for row in rows[1:]:
+                row.append("0.3" if preset == "svrpo-sarah" else "0.5")
+            with open(path, "w", newline="") as handle:
+                csv.writer(handle).writerows(rows)
+    assert main(["plot", str(root)]) == 0
+    figure = root / "figure2-laptop" / "estimator_error_ratio.png"
+    assert f"wrote {figure}" in capsys.readouterr().out
+    assert figure.read_bytes()[:8] == PNG

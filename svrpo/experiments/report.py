@@ -3,6 +3,7 @@ panel and the table (markdown and CSV). Reads run directories only."""
 
 from __future__ import annotations
 
+import json
 import os
 from collections import defaultdict
 from collections.abc import Sequence
@@ -15,8 +16,9 @@ from svrpo.experiments.specs import NAMED_EXPERIMENTS, PAPER_TASKS
 from svrpo.experiments.table import summarize, write_csv, write_markdown
 from svrpo.plotting import RunCurve, load_curve, plot_panels
 
-REPORT_FILES = ("returns.png", "variance_ratio.png", "table.md", "table.csv", "aggregate.md",
-                "aggregate.json")
+REPORT_FILES = ("returns.png", "variance_ratio.png", "estimator_error_ratio.png", "table.md", "table.csv",
+                "aggregate.md", "aggregate.json")
+"""What a report may hold (the two ratio figures only when runs logged the probe)."""
 
 Nested = dict[str, dict[str, list[RunCurve]]]
 
@@ -57,6 +59,16 @@ def write_report(experiment: str, scale: str, run_dirs: Sequence[Path], out_dir:
     if probed:
         written.append(plot_panels(probed, out_dir / "variance_ratio.png", "variance ratio SVRG / SGD",
                                    x_axis="iteration", log_scale=True, title=title, reference=1.0))
+    # Each run's own estimator against SGD (SARAH's and STORM's mean squared error; for SVRG the
+    # same as above): drawn only for experiments with a recursive estimator.
+    if any(_estimator(d) in ("sarah", "storm") for d in run_dirs):
+        own = _nested([load_curve(d, "estimator_variance_ratio") for d in run_dirs], experiment)
+        own = {task: {p: r for p, r in presets.items() if _has_positive(r)} for task, presets in own.items()}
+        own = {task: presets for task, presets in own.items() if presets}
+        if own:
+            written.append(plot_panels(own, out_dir / "estimator_error_ratio.png",
+                                       "estimator error / SGD variance", x_axis="iteration",
+                                       log_scale=True, title=title, reference=1.0))
     evals = _nested([load_curve(d, "eval_return") for d in run_dirs], experiment)
     wall = _nested([load_curve(d, "wall_time") for d in run_dirs], experiment)
     rows = summarize(returns, variance, evals, wall)
@@ -89,6 +101,10 @@ def _nested(curves: Sequence[RunCurve], experiment: str) -> Nested:
 
     return {task: {preset: groups[task][preset] for preset in sorted(groups[task], key=preset_key)}
             for task in sorted(groups, key=task_key)}
+
+
+def _estimator(run_dir: Path) -> str:
+    return str(json.loads((run_dir / "config.json").read_text()).get("estimator", ""))
 
 
 def _has_positive(runs: Sequence[RunCurve]) -> bool:
