@@ -270,7 +270,14 @@ def estimator_variances(
         svrg = svrg_gradient(gradients.snapshot_full, minibatch, gradients.at_snapshot(indices))
         svrg_errors.append(float((svrg - full).pow(2).sum()))
         sgd_errors.append(float((minibatch - full).pow(2).sum()))
-        errors.append(float((estimator.peek(indices) - full).pow(2).sum()))
+        # The built-in stateless estimators' peek is one of the two just computed: reuse it.
+        if type(estimator) is SvrgGradient:
+            own = svrg
+        elif type(estimator) is MinibatchGradient:
+            own = minibatch
+        else:
+            own = estimator.peek(indices)
+        errors.append(float((own - full).pow(2).sum()))
     return VarianceDiagnostic(
         svrg_variance=sum(svrg_errors) / len(svrg_errors),
         sgd_variance=sum(sgd_errors) / len(sgd_errors),
