@@ -124,8 +124,7 @@ MUTANTS = [
            "return StormGradient(config.storm_momentum)", "return StormGradient(0.5)",
            "the storm_momentum field does not reach the estimator"),
     Mutant("probe-measures-svrg-as-the-estimator", "svrpo/estimators.py",
-           "errors.append(float((estimator.peek(indices) - full).pow(2).sum()))",
-           "errors.append(float((svrg - full).pow(2).sum()))",
+           "            own = estimator.peek(indices)", "            own = svrg",
            "estimator_error reports SVRG's error whatever the estimator"),
     # --- trust_region ------------------------------------------------------------------------
     Mutant("step-length-without-2", "svrpo/trust_region/metrics.py",

@@ -385,3 +385,22 @@ def test_surrogate_is_the_mean_advantage_at_the_old_policy() -> None:
     snapshot, batch = make_snapshot_and_batch(seed=4)
     value = surrogate(snapshot, batch, "ratio")
     assert float(value.detach()) == pytest.approx(float(batch.advantages.mean()), rel=1e-12)
+
+
+def test_probe_reports_the_recursions_own_error_not_svrgs() -> None:
+    """Two steps into the path, SARAH's estimate differs from SVRG's: the probe's estimator_error
+    must be SARAH's (3.0, hand-computed), not SVRG's (2.5)."""
+    shift2 = torch.tensor([[0.0, 1.0], [0.0, 1.0], [0.0, -1.0], [0.0, 3.0]], dtype=torch.float64)
+    gradients = TableGradients([AT_SNAPSHOT, AT_W, AT_W + shift2])  # grad U(w_2) = (2.5, 2)
+    sarah = SarahGradient()
+    sarah.start(gradients)  # type: ignore[arg-type]
+    sarah.estimate(torch.tensor([1]))  # v_0 = g~ = (2, 1)
+    gradients.position = 1
+    sarah.estimate(torch.tensor([2]))  # v_1 = (2, 1) + (1.5, 0) = (3.5, 1)
+    gradients.position = 2
+    probes = [torch.tensor([0]), torch.tensor([3])]
+    diagnostic = estimator_variances(sarah, gradients, probes)  # type: ignore[arg-type]
+    # SARAH: v_1 + shift2_i = (3.5, 2), (3.5, 4): errors 1 and 5. SVRG: g~ + shift_i + shift2_i =
+    # (2.5, 2), (1.5, 4): errors 0 and 5.
+    assert diagnostic.estimator_error == pytest.approx(3.0)
+    assert diagnostic.svrg_variance == pytest.approx(2.5)
