@@ -55,8 +55,8 @@ def run_ours(env_id: str, seed: int, iterations: int) -> dict[str, Any]:
 
     import numpy as np
 
-    from svrpo.algorithm import train
     from svrpo.config import make_preset
+    from svrpo.training import train
 
     config = make_preset("trpo", env_id, "laptop").replace(
         **OUR_CONFIG, seed=seed, total_steps=iterations * 2048, eval_every=iterations,

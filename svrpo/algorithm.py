@@ -1,23 +1,20 @@
-"""The training loop: every part is built in `build_run` and composed in `train`, nowhere else.
+"""Algorithm 1: a run's parts composed in `build_run` (nowhere else) and one outer iteration.
 
-Per outer iteration (Algorithm 1 with DESIGN.md's decisions): sample exactly N steps with the
-anchor policy, compute GAE advantages with the current baseline, standardise them over the
-batch, run the J inner steps (`update.update_policy`), refit the baseline, then log one row.
+Per outer iteration (`run_iteration`, with DESIGN.md's decisions): sample exactly N steps with
+the anchor policy, compute GAE advantages with the current baseline, standardise them over the
+batch, run the J inner steps (`update.update_policy`), refit the baseline, evaluate when due;
+the result is an `IterationResult`. training.py runs the iterations and owns the files.
 
 Failures are loud, counted and reversible: a batch or an update with non-finite numbers leaves
 the parameters as they were (progress.csv column nonfinite_batches); a dead sampling worker is
-replaced by a fresh worker set restored to the last recorded sampler state and the call is
-repeated, so the batch is the one an undisturbed run would have drawn; whatever stops the loop,
-the last completed iteration is checkpointed.
+replaced by RestartingSampler, so the batch is the one an undisturbed run would have drawn.
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -26,26 +23,17 @@ import torch
 from svrpo import checkpoint
 from svrpo.advantages import generalized_advantages, standardize
 from svrpo.allocator import keep_freed_memory
-from svrpo.atomic import write_text_atomic
 from svrpo.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction, explained_variance
 from svrpo.config import Config
-from svrpo.errors import TrainingError
 from svrpo.estimators import GradientEstimator
-from svrpo.logging import RunLogger, truncate_progress
 from svrpo.normalization import RunningMeanStd
 from svrpo.objectives import SurrogateBatch, old_log_prob
 from svrpo.parts import UpdateParts, update_parts
 from svrpo.policy import GaussianMlpPolicy
-from svrpo.run_lock import exclusive_writer, record_holder
-from svrpo.run_record import write_config
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.restarting import RestartingSampler
 from svrpo.sampling.sampler import Batch, Sampler
 from svrpo.update import UpdateStats, update_policy
-
-
-class WriteFailedError(TrainingError):
-    """A file of the run could not be written (disk full, ...); what was written before is intact."""
 
 
 @dataclass
@@ -244,7 +232,7 @@ def run_iteration(run: Run) -> IterationResult:
     started = time.perf_counter()
     batch = run.sampler.sample(snapshot_of(run), run.config.batch_size)  # N steps with w~
     sampled = time.perf_counter()
-    warnings = _drain(run.sampler.warnings)
+    warnings = drain(run.sampler.warnings)
     prepared = surrogate_batch(run, batch)  # GAE with the current baseline
     update = update_and_refit(run, batch, prepared, label)  # g~, J inner steps, refit V
     updated = time.perf_counter()
@@ -258,11 +246,12 @@ def run_iteration(run: Run) -> IterationResult:
         action_std=float(run.policy.log_std.detach().exp().mean()),
         nonfinite_batches=run.nonfinite_batches, time_sampling=sampled - started,
         time_update=updated - sampled,
-        warnings=(*warnings, *([update.warning] if update.warning else []), *_drain(run.sampler.warnings)),
+        warnings=(*warnings, *([update.warning] if update.warning else []), *drain(run.sampler.warnings)),
     )
 
 
-def _drain(pending: list[str]) -> list[str]:
+def drain(pending: list[str]) -> list[str]:
+    """The pending warnings, emptying the list."""
     taken = list(pending)
     pending.clear()
     return taken
@@ -319,124 +308,3 @@ def snapshot_of(run: Run) -> PolicySnapshot:
     if run.normalizer is None:
         return run.policy.snapshot()
     return run.policy.snapshot(run.normalizer.mean, run.normalizer.std)
-
-
-def _resume(run: Run, run_dir: Path) -> list[str]:
-    """Restore the newest readable checkpoint and progress.csv as it was then; notes to print."""
-    directory = run_dir / "checkpoints"
-    checkpoint.remove_stale_temporaries(directory)
-    progress = run_dir / "progress.csv"
-    if not checkpoint.list_checkpoints(directory):
-        _restore_progress(progress, "")
-        return ["no checkpoint to resume from: starting at iteration 0"]
-    state, path, warnings = checkpoint.load_latest(directory)
-    checkpoint.restore_state(run, state, path)
-    notes = [f"warning: {warning}" for warning in warnings]
-    notes.append(f"resuming from {path} (iteration {run.iteration})")
-    if "progress_csv" in state:
-        _restore_progress(progress, str(state["progress_csv"]))
-    else:  # a checkpoint written before progress.csv was kept in it: cut the file back instead
-        notes += _truncate_progress(progress, run.iteration)
-    return notes
-
-
-def _restore_progress(progress: Path, text: str) -> None:
-    """Make progress.csv hold exactly `text` (no file for no rows), atomically."""
-    if text:
-        write_text_atomic(progress, text)
-    else:
-        progress.unlink(missing_ok=True)
-
-
-def _truncate_progress(progress: Path, iteration: int) -> list[str]:
-    """Cut progress.csv back to iterations 1..iteration; a warning if rows are missing."""
-    try:
-        kept = truncate_progress(progress, iteration + 1)
-    except ValueError as error:
-        raise checkpoint.CheckpointError(str(error)) from None
-    if kept == list(range(1, iteration + 1)):
-        return []
-    return [f"warning: {progress} should hold the rows of iterations 1..{iteration} (checkpoint), "
-            f"it holds {len(kept)} rows; continuing"]
-
-
-def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bool = True,
-          estimator: GradientEstimator | None = None) -> Run:
-    """Train to config.total_steps, writing config.json, progress.csv, TensorBoard, checkpoints.
-
-    resume=True continues from the newest readable checkpoint in run_dir (an older one if the
-    newest is damaged); progress.csv loses the rows logged after it, which are redone, so the
-    file ends exactly as in an uninterrupted run. resume=False starts over: checkpoints and
-    rows an earlier run left in run_dir are removed (and its TensorBoard events hidden), so the
-    two runs never mix. Whatever stops the loop (Ctrl-C, dying workers, a bug), the last
-    completed iteration is checkpointed before the exception leaves.
-
-    `estimator`: a user's gradient estimator in place of config.estimator's (see build_run); a
-    resume must pass the same one again (config.json cannot record an object).
-    """
-    with exclusive_writer(run_dir):  # one writer per run (re-entrant: the CLI may hold it already)
-        return _train(config, run_dir, resume, show_progress, estimator)
-
-
-def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
-           estimator: GradientEstimator | None) -> Run:
-    """train() once this process holds the run directory's writer lock."""
-    checkpoints = run_dir / "checkpoints"
-    if not resume:
-        for stale in checkpoint.list_checkpoints(checkpoints):
-            stale.unlink()
-        # Written first, so that a run killed while starting is still a resumable directory.
-        write_config(run_dir, config)
-    progress = run_dir / "progress.csv"
-    run = build_run(config, estimator)
-    try:
-        if not resume:
-            _restore_progress(progress, "")  # a fresh start: no rows of an earlier run
-        notes = _resume(run, run_dir) if resume else []
-        write_config(run_dir, config)  # on resume only if it changed (e.g. more total_steps)
-        logger = RunLogger(run_dir, config.iterations * config.batch_size, run.env_steps, show_progress)
-        for note in notes:
-            logger.message(note)
-        record_holder(run_dir)  # from here on this process writes the run
-        last_state = checkpoint.capture_state(run, progress.read_text() if progress.exists() else "")
-        saved_iteration = run.iteration if resume else -1
-        try:
-            while run.iteration < config.iterations:
-                result = run_iteration(run)
-                for warning in result.warnings:  # before the row: a kill right after it loses none
-                    logger.message(warning)
-                logger.log(result.progress_row())
-                last_state = checkpoint.capture_state(run, progress.read_text())
-                if run.iteration % config.checkpoint_every == 0 or run.iteration == config.iterations:
-                    checkpoint.save_atomic(last_state, checkpoint.checkpoint_path(checkpoints, run.iteration))
-                    checkpoint.prune(checkpoints)
-                    saved_iteration = run.iteration
-        except OSError as error:
-            # A write failed (disk full, quota, file-size limit): retrying the checkpoint would fail
-            # the same way, and everything written before the failed write is intact.
-            kept = f"the checkpoint of iteration {saved_iteration} is intact" if saved_iteration > 0 \
-                else "no checkpoint was written yet"
-            raise WriteFailedError(f"cannot write {error.filename or run_dir}: {error.strerror or error}; "
-                                   f"stopped, {kept}; free space, then resume") from None
-        except BaseException as error:
-            for warning in _drain(run.sampler.warnings):  # restarts before the failure
-                logger.message(warning)
-            # The interrupted iteration may be half done; the last completed one is consistent.
-            done = last_state["iteration"]
-            if done not in (0, saved_iteration):
-                try:
-                    checkpoint.save_atomic(last_state, checkpoint.checkpoint_path(checkpoints, done))
-                    checkpoint.prune(checkpoints)
-                except Exception as save_error:  # keep the original error; say the save failed
-                    logger.message(f"could not write the final checkpoint: {save_error}")
-                    raise error from None
-            stopped = "interrupted" if isinstance(error, KeyboardInterrupt) else "stopped"
-            logger.message(f"{stopped}: the checkpoint of iteration {done} is in {checkpoints}" if done
-                           else f"{stopped} before the first iteration ended: nothing to checkpoint")
-            raise
-        finally:
-            with contextlib.suppress(OSError):  # the disk that just failed a write may fail its flush too
-                logger.close()
-    finally:
-        run.sampler.close()
-    return run

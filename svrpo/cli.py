@@ -164,8 +164,8 @@ def _train_locked(args: argparse.Namespace, config: Config, preset: str, run_dir
         write_config(run_dir, config)
         write_meta(run_dir, preset, args.scale)
 
-    from svrpo.algorithm import TrainingError, train
     from svrpo.experiments.runner import raise_keyboard_interrupt
+    from svrpo.training import TrainingError, train
 
     print(f"training {preset} on {config.env_id}: {config.iterations} iterations x "
           f"N={config.batch_size} steps -> {run_dir}", file=sys.stderr)

@@ -47,8 +47,8 @@ def run_case(name: str, directory: Path) -> list[dict[str, str]]:
     """Train case `name` in `directory`; its progress.csv rows minus the wall-clock columns."""
     import csv
 
-    from svrpo.algorithm import train
     from svrpo.config import make_preset
+    from svrpo.training import train
 
     preset, overrides = CASES[name]
     config = make_preset(preset, "Hopper-v5", "laptop")

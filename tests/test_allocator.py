@@ -52,7 +52,7 @@ TRAIN = textwrap.dedent("""
     import sys
     from pathlib import Path
     import svrpo.algorithm
-    from svrpo.algorithm import train
+    from svrpo.training import train
     from svrpo.config import make_preset
     if sys.argv[2] == "default":
         svrpo.algorithm.keep_freed_memory = lambda *args, **kwargs: False

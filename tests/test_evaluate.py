@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from svrpo.algorithm import train
 from svrpo.cli import main
 from svrpo.config import make_preset
 from svrpo.evaluation import EvaluationError, evaluate, find_checkpoint, load_policy
+from svrpo.training import train
 
 EVAL_SEED_OFFSET = 1_000_003  # algorithm.run_iteration evaluates with seed config.seed + this
 

@@ -34,8 +34,8 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from svrpo import algorithm, checkpoint, cli, update
-from svrpo.algorithm import build_run, train
+from svrpo import algorithm, checkpoint, cli, training, update
+from svrpo.algorithm import build_run
 from svrpo.baselines import MlpValueFunction
 from svrpo.config import Config, ConfigError, coerce_field, field_names, make_preset
 from svrpo.estimators import BatchGradients, SvrgGradient
@@ -43,6 +43,7 @@ from svrpo.parameters import flat_parameters
 from svrpo.run_lock import LockedError
 from svrpo.sampling import restarting
 from svrpo.sampling.sampler import Sampler
+from svrpo.training import train
 from tests.helpers import nested_equal, progress_rows, without_clock
 from tests.nan_envs import NAN_REWARD_ID
 
@@ -968,7 +969,7 @@ def test_a_progress_write_that_fails_keeps_the_checkpoint_and_rows_before_it(
 
     monkeypatch.setattr(RunLogger, "log", full_disk_at_iteration_5)
     out = tmp_path / "run"
-    with pytest.raises(algorithm.WriteFailedError, match="No space left on device.*iteration 4 is intact"):
+    with pytest.raises(training.WriteFailedError, match="No space left on device.*iteration 4 is intact"):
         train(config, out, show_progress=False)
     assert checkpoint.load(checkpoint.checkpoint_path(out / "checkpoints", 4))["iteration"] == 4
     assert [row["iteration"] for row in progress_rows(out, complete_only=True)] == ["1", "2", "3", "4"]

@@ -7,11 +7,12 @@ from pathlib import Path
 import pytest
 import torch
 
-from svrpo.algorithm import build_run, surrogate_batch, train
+from svrpo.algorithm import build_run, surrogate_batch
 from svrpo.config import make_preset
 from svrpo.objectives import mean_kl_from
 from svrpo.parameters import flat_parameters, set_flat_parameters
 from svrpo.parts import update_parts
+from svrpo.training import train
 from svrpo.update import update_policy
 from tests.helpers import progress_rows, without_clock
 

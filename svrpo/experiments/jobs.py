@@ -173,7 +173,7 @@ def prepare(job: RunJob) -> None:
 
 def execute(run_dir: Path) -> JobResult:
     """Train (or resume) the run in `run_dir` in this process, from its config.json."""
-    from svrpo.algorithm import train
+    from svrpo.training import train
 
     config = Config.from_json((run_dir / "config.json").read_text())
     started = time.perf_counter()

@@ -1,0 +1,148 @@
+"""Training a run into its directory: config.json, progress.csv, TensorBoard, checkpoints.
+
+`train` owns the files; the iteration itself is algorithm.run_iteration. Whatever stops the
+loop (Ctrl-C, dying workers, a full disk, a bug), the last completed iteration is checkpointed,
+and a resume ends with the same progress.csv, row for row, as an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+from svrpo import checkpoint
+from svrpo.algorithm import Run, build_run, drain, run_iteration
+from svrpo.atomic import write_text_atomic
+from svrpo.config import Config
+from svrpo.errors import TrainingError
+from svrpo.estimators import GradientEstimator
+from svrpo.logging import RunLogger, truncate_progress
+from svrpo.run_lock import exclusive_writer, record_holder
+from svrpo.run_record import write_config
+
+__all__ = ["TrainingError", "WriteFailedError", "train"]
+
+
+class WriteFailedError(TrainingError):
+    """A file of the run could not be written (disk full, ...); what was written before is intact."""
+
+
+def _resume(run: Run, run_dir: Path) -> list[str]:
+    """Restore the newest readable checkpoint and progress.csv as it was then; notes to print."""
+    directory = run_dir / "checkpoints"
+    checkpoint.remove_stale_temporaries(directory)
+    progress = run_dir / "progress.csv"
+    if not checkpoint.list_checkpoints(directory):
+        _restore_progress(progress, "")
+        return ["no checkpoint to resume from: starting at iteration 0"]
+    state, path, warnings = checkpoint.load_latest(directory)
+    checkpoint.restore_state(run, state, path)
+    notes = [f"warning: {warning}" for warning in warnings]
+    notes.append(f"resuming from {path} (iteration {run.iteration})")
+    if "progress_csv" in state:
+        _restore_progress(progress, str(state["progress_csv"]))
+    else:  # a checkpoint written before progress.csv was kept in it: cut the file back instead
+        notes += _truncate_progress(progress, run.iteration)
+    return notes
+
+
+def _restore_progress(progress: Path, text: str) -> None:
+    """Make progress.csv hold exactly `text` (no file for no rows), atomically."""
+    if text:
+        write_text_atomic(progress, text)
+    else:
+        progress.unlink(missing_ok=True)
+
+
+def _truncate_progress(progress: Path, iteration: int) -> list[str]:
+    """Cut progress.csv back to iterations 1..iteration; a warning if rows are missing."""
+    try:
+        kept = truncate_progress(progress, iteration + 1)
+    except ValueError as error:
+        raise checkpoint.CheckpointError(str(error)) from None
+    if kept == list(range(1, iteration + 1)):
+        return []
+    return [f"warning: {progress} should hold the rows of iterations 1..{iteration} (checkpoint), "
+            f"it holds {len(kept)} rows; continuing"]
+
+
+def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bool = True,
+          estimator: GradientEstimator | None = None) -> Run:
+    """Train to config.total_steps, writing config.json, progress.csv, TensorBoard, checkpoints.
+
+    resume=True continues from the newest readable checkpoint in run_dir (an older one if the
+    newest is damaged); progress.csv loses the rows logged after it, which are redone, so the
+    file ends exactly as in an uninterrupted run. resume=False starts over: checkpoints and
+    rows an earlier run left in run_dir are removed (and its TensorBoard events hidden), so the
+    two runs never mix. Whatever stops the loop (Ctrl-C, dying workers, a bug), the last
+    completed iteration is checkpointed before the exception leaves.
+
+    `estimator`: a user's gradient estimator in place of config.estimator's (see build_run); a
+    resume must pass the same one again (config.json cannot record an object).
+    """
+    with exclusive_writer(run_dir):  # one writer per run (re-entrant: the CLI may hold it already)
+        return _train(config, run_dir, resume, show_progress, estimator)
+
+
+def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
+           estimator: GradientEstimator | None) -> Run:
+    """train() once this process holds the run directory's writer lock."""
+    checkpoints = run_dir / "checkpoints"
+    if not resume:
+        for stale in checkpoint.list_checkpoints(checkpoints):
+            stale.unlink()
+        # Written first, so that a run killed while starting is still a resumable directory.
+        write_config(run_dir, config)
+    progress = run_dir / "progress.csv"
+    run = build_run(config, estimator)
+    try:
+        if not resume:
+            _restore_progress(progress, "")  # a fresh start: no rows of an earlier run
+        notes = _resume(run, run_dir) if resume else []
+        write_config(run_dir, config)  # on resume only if it changed (e.g. more total_steps)
+        logger = RunLogger(run_dir, config.iterations * config.batch_size, run.env_steps, show_progress)
+        for note in notes:
+            logger.message(note)
+        record_holder(run_dir)  # from here on this process writes the run
+        last_state = checkpoint.capture_state(run, progress.read_text() if progress.exists() else "")
+        saved_iteration = run.iteration if resume else -1
+        try:
+            while run.iteration < config.iterations:
+                result = run_iteration(run)
+                for warning in result.warnings:  # before the row: a kill right after it loses none
+                    logger.message(warning)
+                logger.log(result.progress_row())
+                last_state = checkpoint.capture_state(run, progress.read_text())
+                if run.iteration % config.checkpoint_every == 0 or run.iteration == config.iterations:
+                    checkpoint.save_atomic(last_state, checkpoint.checkpoint_path(checkpoints, run.iteration))
+                    checkpoint.prune(checkpoints)
+                    saved_iteration = run.iteration
+        except OSError as error:
+            # A write failed (disk full, quota, file-size limit): retrying the checkpoint would fail
+            # the same way, and everything written before the failed write is intact.
+            kept = f"the checkpoint of iteration {saved_iteration} is intact" if saved_iteration > 0 \
+                else "no checkpoint was written yet"
+            raise WriteFailedError(f"cannot write {error.filename or run_dir}: {error.strerror or error}; "
+                                   f"stopped, {kept}; free space, then resume") from None
+        except BaseException as error:
+            for warning in drain(run.sampler.warnings):  # restarts before the failure
+                logger.message(warning)
+            # The interrupted iteration may be half done; the last completed one is consistent.
+            done = last_state["iteration"]
+            if done not in (0, saved_iteration):
+                try:
+                    checkpoint.save_atomic(last_state, checkpoint.checkpoint_path(checkpoints, done))
+                    checkpoint.prune(checkpoints)
+                except Exception as save_error:  # keep the original error; say the save failed
+                    logger.message(f"could not write the final checkpoint: {save_error}")
+                    raise error from None
+            stopped = "interrupted" if isinstance(error, KeyboardInterrupt) else "stopped"
+            logger.message(f"{stopped}: the checkpoint of iteration {done} is in {checkpoints}" if done
+                           else f"{stopped} before the first iteration ended: nothing to checkpoint")
+            raise
+        finally:
+            with contextlib.suppress(OSError):  # the disk that just failed a write may fail its flush too
+                logger.close()
+    finally:
+        run.sampler.close()
+    return run
