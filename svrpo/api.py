@@ -26,10 +26,13 @@ def train(config: Config, run_dir: str | os.PathLike[str], resume: bool = False,
     estimator: your gradient estimator (the svrpo.estimators.GradientEstimator protocol, see
     docs/estimators.md) in place of config.estimator's; pass it again to resume.
     """
+    from svrpo.parts import check_estimator
     from svrpo.run_record import write_meta
     from svrpo.sampling.envs import env_id_of
     from svrpo.training import train as train_run
 
+    if estimator is not None:
+        check_estimator(estimator)  # before anything is written
     if env is not None:
         config = config.replace(env_id=env_id_of(env))
     path = Path(run_dir)

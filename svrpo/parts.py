@@ -104,8 +104,21 @@ def estimator_for(config: Config) -> GradientEstimator:
     raise ValueError(f"unknown estimator {config.estimator!r}")
 
 
+def check_estimator(estimator: object) -> None:
+    """TypeError naming what is missing if `estimator` lacks a GradientEstimator member."""
+    if isinstance(estimator, GradientEstimator):
+        return
+    members = ("uses_minibatches", "start", "estimate", "peek")
+    missing = [name for name in members if not hasattr(estimator, name)]
+    raise TypeError(f"estimator {type(estimator).__name__} lacks {', '.join(missing)}: a gradient "
+                    "estimator needs uses_minibatches, start(gradients), estimate(indices) and "
+                    "peek(indices) (see docs/estimators.md)")
+
+
 def update_parts(config: Config, estimator: GradientEstimator | None = None) -> UpdateParts:
     """The update's parts for `config` (a user's `estimator` in place of config.estimator's)."""
+    if estimator is not None:
+        check_estimator(estimator)
     metric: DirectionMetric = (FisherMetric(config.cg_iters, config.cg_residual_tol)
                                if config.metric == "fisher" else IdentityMetric())
     anchor: KlAnchor = SamplingAnchor() if config.kl_anchor == "sampling" else IterateAnchor()

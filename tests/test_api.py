@@ -116,3 +116,16 @@ def test_an_env_factory_workers_cannot_import_is_refused_before_anything_runs(tm
         with pytest.raises(EnvError, match="top level of a module"):
             svrpo.train(config, tmp_path / "run", env=factory)
     assert not (tmp_path / "run").exists()
+
+
+def test_an_estimator_without_the_protocol_is_refused_before_anything_runs(tmp_path: Path) -> None:
+    class Incomplete:
+        uses_minibatches = True
+
+        def estimate(self, indices: object) -> None:
+            return None
+
+    config = svrpo.make_preset("svrpo", "InvertedPendulum-v5", "laptop")
+    with pytest.raises(TypeError, match="lacks start, peek"):
+        svrpo.train(config, tmp_path / "run", estimator=Incomplete())  # type: ignore[arg-type]
+    assert not (tmp_path / "run").exists()
