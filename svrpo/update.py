@@ -18,6 +18,7 @@ from svrpo.objectives import SurrogateBatch, per_sample_surrogate
 from svrpo.parameters import flat_parameters, set_flat_parameters
 from svrpo.parts import UpdateParts
 from svrpo.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
+from svrpo.trust_region.anchors import Gaussian
 from svrpo.trust_region.metrics import max_step_length
 
 
@@ -64,9 +65,7 @@ class UpdateStats:
 
 class _FullBatchEvaluator:
     """U(w) and mean KL(anchor || pi_w) on the full batch at the policy's current w, from one
-    forward pass of the network (values only, GaussianMlpPolicy.activations).
-
-    """
+    forward pass of the network (values only, GaussianMlpPolicy.activations)."""
 
     def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> None:
         self.policy, self.batch, self.kind = policy, batch, kind
@@ -90,9 +89,7 @@ class _FullBatchEvaluator:
             log_std = self.policy.log_std.expand_as(mean)
             return float(gaussian_kl(anchor_mean, anchor_log_std, mean, log_std).mean())
 
-    def objective_and_kl(
-        self, anchor: tuple[torch.Tensor, torch.Tensor]
-    ) -> Callable[[], tuple[float, float]]:
+    def objective_and_kl(self, anchor: Gaussian) -> Callable[[], tuple[float, float]]:
         """The line search's evaluate(): () -> (U(w), KL(anchor || pi_w)), one forward pass."""
         anchor_mean, anchor_log_std = anchor
 
