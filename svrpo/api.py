@@ -40,6 +40,8 @@ def train(config: Config, run_dir: str | os.PathLike[str], resume: bool = False,
         path.mkdir(parents=True, exist_ok=True)
         extra = {} if estimator is None else {
             "estimator_object": f"{type(estimator).__module__}.{type(estimator).__qualname__}"}
-        write_meta(path, "custom", None, keep_existing=True, **extra)
+        # The preset name is the label `svrpo plot` draws: the estimator's class for a user's one.
+        label = "custom" if estimator is None else type(estimator).__name__
+        write_meta(path, label, None, keep_existing=True, **extra)
     train_run(config, path, resume=resume, show_progress=show_progress, estimator=estimator)
     return path
