@@ -232,7 +232,7 @@ def run_iteration(run: Run) -> IterationResult:
     started = time.perf_counter()
     batch = run.sampler.sample(snapshot_of(run), run.config.batch_size)  # N steps with w~
     sampled = time.perf_counter()
-    warnings = drain(run.sampler.warnings)
+    warnings = run.sampler.take_warnings()
     prepared = surrogate_batch(run, batch)  # GAE with the current baseline
     update = update_and_refit(run, batch, prepared, label)  # g~, J inner steps, refit V
     updated = time.perf_counter()
@@ -246,15 +246,8 @@ def run_iteration(run: Run) -> IterationResult:
         action_std=float(run.policy.log_std.detach().exp().mean()),
         nonfinite_batches=run.nonfinite_batches, time_sampling=sampled - started,
         time_update=updated - sampled,
-        warnings=(*warnings, *([update.warning] if update.warning else []), *drain(run.sampler.warnings)),
+        warnings=(*warnings, *([update.warning] if update.warning else []), *run.sampler.take_warnings()),
     )
-
-
-def drain(pending: list[str]) -> list[str]:
-    """The pending warnings, emptying the list."""
-    taken = list(pending)
-    pending.clear()
-    return taken
 
 
 def update_and_refit(run: Run, batch: Batch, prepared: PreparedBatch, label: str) -> UpdateOutcome:

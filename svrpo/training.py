@@ -11,7 +11,7 @@ import contextlib
 from pathlib import Path
 
 from svrpo import checkpoint
-from svrpo.algorithm import Run, build_run, drain, run_iteration
+from svrpo.algorithm import Run, build_run, run_iteration
 from svrpo.atomic import write_text_atomic
 from svrpo.config import Config
 from svrpo.errors import TrainingError
@@ -125,7 +125,7 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
             raise WriteFailedError(f"cannot write {error.filename or run_dir}: {error.strerror or error}; "
                                    f"stopped, {kept}; free space, then resume") from None
         except BaseException as error:
-            for warning in drain(run.sampler.warnings):  # restarts before the failure
+            for warning in run.sampler.take_warnings():  # restarts before the failure
                 logger.message(warning)
             # The interrupted iteration may be half done; the last completed one is consistent.
             done = last_state["iteration"]

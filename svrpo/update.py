@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import torch
 
 from svrpo.config import Surrogate
+from svrpo.estimators import VarianceDiagnostic
 from svrpo.objectives import SurrogateBatch, per_sample_surrogate
 from svrpo.parameters import flat_parameters, set_flat_parameters
 from svrpo.parts import UpdateParts
@@ -178,12 +179,10 @@ def update_policy(
     # The probe looks at the last inner iterate: the farthest the loop went from w~, where the
     # control variate is weakest. With no accepted step that is w~ itself (SVRG's variance is
     # exactly 0 there), which says nothing, so the probe is left out.
-    variances = (math.nan,) * 5
+    diagnostic = VarianceDiagnostic(math.nan, math.nan, math.nan)  # its ratios are nan too
     if accepted and loop.variance_probe_batches > 0 and estimator.uses_minibatches:
         probes = [_draw(count, minibatch_rows, probe_generator) for _ in range(loop.variance_probe_batches)]
         diagnostic = parts.variance_probe(estimator, gradients, probes)
-        variances = (diagnostic.svrg_variance, diagnostic.sgd_variance, diagnostic.ratio,
-                     diagnostic.estimator_error, diagnostic.estimator_ratio)
 
     old_log_std = batch.old_log_std.expand_as(batch.old_mean)
     final_kl = full_batch.kl(batch.old_mean, old_log_std)
@@ -199,9 +198,9 @@ def update_policy(
         mean_kl=final_kl,
         cg_residual=sum(cg_residuals) / len(cg_residuals) if cg_residuals else math.nan,
         cg_iterations=sum(cg_iterations) / len(cg_iterations) if cg_iterations else math.nan,
-        svrg_variance=variances[0],
-        sgd_variance=variances[1],
-        variance_ratio=variances[2],
-        estimator_error=variances[3],
-        estimator_variance_ratio=variances[4],
+        svrg_variance=diagnostic.svrg_variance,
+        sgd_variance=diagnostic.sgd_variance,
+        variance_ratio=diagnostic.ratio,
+        estimator_error=diagnostic.estimator_error,
+        estimator_variance_ratio=diagnostic.estimator_ratio,
     )

@@ -63,6 +63,7 @@ def test_a_death_mid_call_repeats_it_from_the_last_recorded_state() -> None:
     assert sampler.get_state() == {"steps": 20}
     assert sampler.warnings == ["warning: iteration 2: sampling worker 1 died; restarting the sampling "
                                 "workers from the last recorded state and repeating the call"]
+    assert len(sampler.take_warnings()) == 1 and sampler.take_warnings() == []  # taken once
 
 
 def test_evaluation_does_not_move_the_recorded_state() -> None:

@@ -31,7 +31,7 @@ class SamplerGaveUpError(TrainingError):
 class RestartingSampler:
     """Sampler(s) built by `make`, replaced by a fresh one restored to the last recorded state
     whenever a worker dies during a call. `warnings` collects one line per restart (the caller
-    prints and clears them); `restarts` counts them over this object's life."""
+    takes them with take_warnings); `restarts` counts them over this object's life."""
 
     def __init__(self, make: Callable[[], Sampler], max_restarts: int | None = None) -> None:
         self._make = make
@@ -41,6 +41,7 @@ class RestartingSampler:
         self._state = self._sampler.get_state()
         self.restarts = 0
         self.warnings: list[str] = []
+        """Restart warnings not yet taken (take_warnings)."""
         self.label = ""
         """Prefix of the warnings (e.g. "iteration 3"), set by the caller before each call."""
 
@@ -55,6 +56,11 @@ class RestartingSampler:
 
     def evaluate(self, snapshot: PolicySnapshot, episodes: int, seed: int) -> np.ndarray:
         return self._with_workers(lambda sampler: sampler.evaluate(snapshot, episodes, seed))
+
+    def take_warnings(self) -> list[str]:
+        """The restart warnings since the last call, in order (the list is emptied)."""
+        taken, self.warnings = self.warnings, []
+        return taken
 
     def get_state(self) -> dict[str, Any]:
         """The state after the last completed sample() (what a checkpoint saves)."""
