@@ -13,6 +13,7 @@ from svrpo.experiments.aggregate import (
     normalised,
     probability_of_improvement,
     stratified_bootstrap,
+    write_aggregate,
 )
 from svrpo.plotting import RunCurve
 
@@ -81,4 +82,25 @@ def test_aggregate_report_normalises_by_the_initial_policy_and_trpo() -> None:
     assert report["iqm"]["trpo"]["value"] == pytest.approx(1.0)
     assert report["probability_of_improvement_over_trpo"]["svrpo"]["value"] == pytest.approx(0.75)
     assert [t["random_return"] for t in report["tasks"]] == [0.0, 0.0]
+    assert report["probability_of_svrpo_over_preset"] == {}  # no ablation among the presets
     assert aggregate_report({"A": {"svrpo": returns["A"]["svrpo"]}}) is None  # no TRPO to compare with
+
+
+def test_an_ablation_is_compared_with_svrpo_as_well_as_with_trpo(tmp_path: Path) -> None:
+    """Task A: trpo 10, 10; svrpo 20, 30; svrpo-sgd 15, 40 -> P(svrpo > sgd) pairs (20 > 15,
+    20 < 40, 30 > 15, 30 < 40) = 0.5; task B: trpo 100, 100; svrpo 150, 150; sgd 50, 150 ->
+    (1, 0.5, 1, 0.5) = 0.75. Mean 0.625; P(sgd > trpo) = (1 + 0.5) / 2 = 0.75."""
+    finals = {"A": {"trpo": (10.0, 10.0), "svrpo": (20.0, 30.0), "svrpo-sgd": (15.0, 40.0)},
+              "B": {"trpo": (100.0, 100.0), "svrpo": (150.0, 150.0), "svrpo-sgd": (50.0, 150.0)}}
+    returns = {task: {preset: [_curve(task, preset, seed, value) for seed, value in enumerate(values)]
+                      for preset, values in by_preset.items()} for task, by_preset in finals.items()}
+    report = aggregate_report(returns)
+    assert report is not None
+    assert report["probability_of_svrpo_over_preset"]["svrpo-sgd"]["value"] == pytest.approx(0.625)
+    assert set(report["probability_of_svrpo_over_preset"]) == {"svrpo-sgd"}
+    assert report["probability_of_improvement_over_trpo"]["svrpo-sgd"]["value"] == pytest.approx(0.75)
+    markdown = write_aggregate(report, tmp_path, "figure2")[0].read_text()
+    assert "P(svrpo > preset)" in markdown
+    sgd_row = next(line for line in markdown.splitlines() if line.startswith("| svrpo-sgd |"))
+    cells = [cell.strip() for cell in sgd_row.split("|")]
+    assert cells[3].startswith("0.75 [") and cells[4].startswith("0.62 [")  # over trpo; svrpo over it

@@ -78,11 +78,15 @@ def stratified_bootstrap(statistic: Callable[..., float], *groups: Scores, resam
 
 
 REFERENCE = "trpo"
+BASE = "svrpo"
+"""The preset every ablation differs from by one field: an ablation's report also gives
+P(svrpo > ablation), the question its paper figure asks (SVRG vs SGD, Fisher vs identity)."""
 
 
 def aggregate_report(returns: Mapping[str, Mapping[str, Sequence[RunCurve]]]) -> dict[str, Any] | None:
-    """IQM of normalised final returns per preset and P(preset > trpo), over the tasks where
-    every preset and trpo have runs; None when fewer than one such task or no trpo.
+    """IQM of normalised final returns per preset, P(preset > trpo) and, when svrpo is among
+    the presets, P(svrpo > preset) for every other SVRPO preset, over the tasks where every
+    preset and trpo have runs; None when fewer than one such task or no trpo.
 
     Normalisation per task: 0 = the initial policy's return (mean over every run of the task of
     its first iteration's average_return: the same untrained Gaussian policy family for every
@@ -112,7 +116,8 @@ def aggregate_report(returns: Mapping[str, Mapping[str, Sequence[RunCurve]]]) ->
         used.append({"task": task, "random_return": random_return, "trpo_final_return": reference})
     if not used:
         return None
-    report: dict[str, Any] = {"tasks": used, "iqm": {}, "probability_of_improvement_over_trpo": {}}
+    report: dict[str, Any] = {"tasks": used, "iqm": {}, "probability_of_improvement_over_trpo": {},
+                              "probability_of_svrpo_over_preset": {}}
     for p in presets:
         estimate = stratified_bootstrap(iqm, finals[p])
         report["iqm"][p] = {"value": estimate.value, "ci": [estimate.low, estimate.high],
@@ -121,7 +126,18 @@ def aggregate_report(returns: Mapping[str, Mapping[str, Sequence[RunCurve]]]) ->
             poi = stratified_bootstrap(probability_of_improvement, finals[p], finals[REFERENCE])
             report["probability_of_improvement_over_trpo"][p] = {"value": poi.value,
                                                                  "ci": [poi.low, poi.high]}
+        if BASE in presets and p not in (BASE, REFERENCE):
+            base = stratified_bootstrap(probability_of_improvement, finals[BASE], finals[p])
+            report["probability_of_svrpo_over_preset"][p] = {"value": base.value,
+                                                             "ci": [base.low, base.high]}
     return report
+
+
+def _interval(estimate: Mapping[str, Any] | None) -> str:
+    """'0.64 [0.47, 0.80]' from a {"value", "ci"} entry; '' for none."""
+    if not estimate:
+        return ""
+    return f"{estimate['value']:.2f} [{estimate['ci'][0]:.2f}, {estimate['ci'][1]:.2f}]"
 
 
 def write_aggregate(report: dict[str, Any], out_dir: Path, title: str) -> list[Path]:
@@ -130,14 +146,19 @@ def write_aggregate(report: dict[str, Any], out_dir: Path, title: str) -> list[P
     json_path, md_path = out_dir / "aggregate.json", out_dir / "aggregate.md"
     json_path.write_text(json.dumps(report, indent=2) + "\n")
     tasks = ", ".join(t["task"] for t in report["tasks"])
-    lines = [f"# {title}: across {len(report['tasks'])} tasks ({tasks})", "",
-             "| preset | IQM of normalised final return [95% CI] | P(preset > trpo) [95% CI] |",
-             "|---|---|---|"]
+    over_preset = report.get("probability_of_svrpo_over_preset", {})
+    header = "| preset | IQM of normalised final return [95% CI] | P(preset > trpo) [95% CI] |"
+    rule = "|---|---|---|"
+    if over_preset:
+        header += f" P({BASE} > preset) [95% CI] |"
+        rule += "---|"
+    lines = [f"# {title}: across {len(report['tasks'])} tasks ({tasks})", "", header, rule]
     for preset, iqm_value in report["iqm"].items():
-        poi = report["probability_of_improvement_over_trpo"].get(preset)
-        poi_text = f"{poi['value']:.2f} [{poi['ci'][0]:.2f}, {poi['ci'][1]:.2f}]" if poi else ""
-        lines.append(f"| {preset} | {iqm_value['value']:.2f} [{iqm_value['ci'][0]:.2f}, "
-                     f"{iqm_value['ci'][1]:.2f}] | {poi_text} |")
+        row = (f"| {preset} | {_interval(iqm_value)} | "
+               f"{_interval(report['probability_of_improvement_over_trpo'].get(preset))} |")
+        if over_preset:
+            row += f" {_interval(over_preset.get(preset))} |"
+        lines.append(row)
     lines += ["", "Normalised final return per task: (R - R0) / (R_trpo - R0), R the run's final return "
               "(mean training return over the last 10% of iterations), R0 the mean first-iteration "
               "return over the task's runs (the untrained policy), R_trpo TRPO's mean final return. "
