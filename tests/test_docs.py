@@ -31,3 +31,27 @@ def test_every_relative_link_resolves_inside_the_repository() -> None:
 def test_no_document_points_outside_the_repository() -> None:
     outside = [str(d.relative_to(ROOT)) for d in DOCUMENTS if "../shared" in d.read_text()]
     assert not outside, outside
+
+
+def _table_rows(text: str) -> set[str]:
+    """Data rows of the markdown tables in text (header and rule rows left out)."""
+    rows = set()
+    for line in text.splitlines():
+        line = line.strip()
+        if line.startswith("|") and not line.startswith(("|---", "| task |", "| preset |")):
+            rows.add(line)
+    return rows
+
+
+def test_every_results_table_row_is_a_row_of_a_committed_report() -> None:
+    """results/RESULTS.md copies its tables from the reports `svrpo plot` and
+    benchmarks/anchor_table.py write: a row edited by hand, or left behind when a report was
+    regenerated, is not in any of them."""
+    reports = [*ROOT.glob("results/*/*.md"), *ROOT.glob("results/before-core-v2/*/*.md"),
+               *ROOT.glob("benchmarks/results/*.md")]
+    report_rows = set().union(*(_table_rows(path.read_text()) for path in reports))
+    results_rows = _table_rows((ROOT / "results" / "RESULTS.md").read_text())
+    numeric = {row for row in results_rows if re.search(r"\d", row) and "[" in row}
+    assert len(numeric) > 40  # the tables are there to check
+    stale = sorted(numeric - report_rows)
+    assert not stale, stale
