@@ -7,7 +7,8 @@ kills "survives" and is listed in the report with the reason it is accepted (equ
 original, or a deliberate blind spot). Not part of CI: one mutant takes ~10 s to ~3 min.
 
     python benchmarks/mutation.py                  # every mutant -> benchmarks/results/mutation.json
-    python benchmarks/mutation.py --only fisher    # mutants whose name contains "fisher"
+    python benchmarks/mutation.py --only fisher    # re-run the mutants whose name contains
+                                                   # "fisher"; the report keeps the others
 
 The copy holds the package and the tests only; PYTHONPATH points the tests (and the sampling
 worker processes they spawn) at it, so the checkout itself is never modified.
@@ -39,6 +40,10 @@ TESTS = [
 ]
 """The math and pipeline tests (the whole suite minus CLI, sweeps, Ray, plotting and fault tests)."""
 
+STATISTICS_TESTS = ("tests/test_aggregate.py", "tests/test_plotting.py")
+"""The tests of the evidence statistics (svrpo/experiments/table.py and aggregate.py: final
+return, samples and wall-clock to TRPO's final, IQM, probability of improvement)."""
+
 
 @dataclass(frozen=True)
 class Mutant:
@@ -50,6 +55,8 @@ class Mutant:
     replacement: str
     what: str
     """The mistake the mutant models."""
+    tests: tuple[str, ...] = tuple(TESTS)
+    """The test files run against it."""
 
 
 MUTANTS = [
@@ -226,6 +233,53 @@ MUTANTS = [
     Mutant("linear-features-time-scale", "svrpo/baselines.py",
            "t = timesteps.double().unsqueeze(-1) / 100.0", "t = timesteps.double().unsqueeze(-1) / 10.0",
            "rllab's time features scaled differently"),
+    # --- experiments/aggregate.py and table.py: the evidence statistics --------------------
+    Mutant("stats-iqm-trim-10pct", "svrpo/experiments/aggregate.py",
+           "for s in scores]), 0.25))",
+           "for s in scores]), 0.1))",
+           "the IQM trims 10% at each end, not 25%", STATISTICS_TESTS),
+    Mutant("stats-poi-ties-count-zero", "svrpo/experiments/aggregate.py",
+           "(xs > ys) + 0.5 * (xs == ys)",
+           "(xs > ys) + 0.0 * (xs == ys)",
+           "a tie counts as a loss", STATISTICS_TESTS),
+    Mutant("stats-bootstrap-pooled-over-tasks", "svrpo/experiments/aggregate.py",
+           "return [np.asarray(s)[rng.integers(0, len(s), size=len(s))] for s in scores]",
+           "pooled = np.concatenate([np.asarray(s) for s in scores])\n"
+           "    return [pooled[rng.integers(0, pooled.size, size=len(s))] for s in scores]",
+           "runs resampled across tasks, not within each (not stratified)", STATISTICS_TESTS),
+    Mutant("stats-normalise-from-zero", "svrpo/experiments/aggregate.py",
+           "random_return = float(first.mean()) if first.size else 0.0",
+           "random_return = 0.0",
+           "scores normalised from 0 instead of the untrained policy's return", STATISTICS_TESTS),
+    Mutant("stats-poi-direction-swapped", "svrpo/experiments/aggregate.py",
+           "stratified_bootstrap(probability_of_improvement, finals[p], finals[REFERENCE])",
+           "stratified_bootstrap(probability_of_improvement, finals[REFERENCE], finals[p])",
+           "P(trpo > preset) reported as P(preset > trpo)", STATISTICS_TESTS),
+    Mutant("stats-ablation-poi-direction-swapped", "svrpo/experiments/aggregate.py",
+           "stratified_bootstrap(probability_of_improvement, finals[BASE], finals[p])",
+           "stratified_bootstrap(probability_of_improvement, finals[p], finals[BASE])",
+           "P(ablation > svrpo) reported as P(svrpo > ablation)", STATISTICS_TESTS),
+    Mutant("stats-final-window-20pct", "svrpo/experiments/table.py",
+           "FINAL_FRACTION = 0.1",
+           "FINAL_FRACTION = 0.2",
+           "the final return averages the last 20% of iterations", STATISTICS_TESTS),
+    Mutant("stats-reach-strictly-above", "svrpo/experiments/table.py",
+           "reached = np.flatnonzero(np.nan_to_num(curve, nan=-np.inf) >= target)",
+           "reached = np.flatnonzero(np.nan_to_num(curve, nan=-np.inf) > target)",
+           "reaching TRPO's final return needs to exceed it", STATISTICS_TESTS),
+    Mutant("stats-wall-at-last-reaching", "svrpo/experiments/table.py",
+           "curves.shape[1])[reached[0]])",
+           "curves.shape[1])[reached[-1]])",
+           "wall-clock at the last iteration above TRPO's final, not the first", STATISTICS_TESTS),
+    Mutant("stats-eval-first-not-last", "svrpo/experiments/table.py",
+           "lasts.append(float(finite[-1]))",
+           "lasts.append(float(finite[0]))",
+           "the first deterministic evaluation reported as the final one", STATISTICS_TESTS),
+    Mutant("stats-wall-percent-of-own-total", "svrpo/experiments/table.py",
+           "percent_of_trpo_wall=100.0 * seconds / reference_wall)",
+           "percent_of_trpo_wall=100.0 * seconds"
+           " / float(_wall_curve(wall[task][preset], curves.shape[1])[-1]))",
+           "wall-clock as a share of the preset's own total, not TRPO's", STATISTICS_TESTS),
 ]
 
 
@@ -241,7 +295,7 @@ def run_mutant(mutant: Mutant, workdir: Path, timeout: float) -> dict[str, Any]:
         return {"status": "not-applied", "reason": f"original text found {text.count(mutant.original)} times"}
     target.write_text(text.replace(mutant.original, mutant.replacement))
     env = {**os.environ, "PYTHONPATH": str(copy)}
-    command = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *TESTS]
+    command = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *mutant.tests]
     started = time.perf_counter()
     try:
         done = subprocess.run(command, cwd=copy, env=env, capture_output=True, text=True, timeout=timeout)
@@ -261,7 +315,10 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=RESULTS / "mutation.json")
     args = parser.parse_args()
     selected = [m for m in MUTANTS if args.only in m.name]
-    results: dict[str, Any] = {}
+    # --only re-runs some mutants: the others keep their last outcome in the same report.
+    previous = json.loads(args.out.read_text()) if args.only and args.out.exists() else {}
+    results: dict[str, Any] = {name: r for name, r in previous.get("results", {}).items()
+                               if any(m.name == name for m in MUTANTS)}
     with tempfile.TemporaryDirectory(prefix="svrpo-mutants-") as tmp:
         for mutant in selected:
             outcome = run_mutant(mutant, Path(tmp), args.timeout)
@@ -271,7 +328,7 @@ def main() -> None:
     survivors = [name for name, r in results.items() if r["status"] != "killed"]
     report = {
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
-        "tests": TESTS, "mutants": len(results),
+        "tests": TESTS, "statistics_tests": list(STATISTICS_TESTS), "mutants": len(results),
         "killed": len(results) - len(survivors), "not_killed": survivors, "results": results,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -60,9 +60,9 @@ def test_stratified_bootstrap_interval_covers_the_point_and_shrinks_with_more_ru
     assert (separated.value, separated.low, separated.high) == (1.0, 1.0, 1.0)
 
 
-def _curve(task: str, preset: str, seed: int, final: float) -> RunCurve:
-    """20 iterations: 0 (the untrained policy) for 18, then `final` (the last 10%: 2 iterations)."""
-    values = np.array([0.0] * 18 + [final, final])
+def _curve(task: str, preset: str, seed: int, final: float, start: float = 0.0) -> RunCurve:
+    """20 iterations: `start` (the untrained policy) for 18, then `final` (the last 10%: 2)."""
+    values = np.array([start] * 18 + [final, final])
     return RunCurve(Path(f"{task}/{preset}/seed{seed}"), task, preset, seed, np.arange(1, 21) * 100, values)
 
 
@@ -104,3 +104,16 @@ def test_an_ablation_is_compared_with_svrpo_as_well_as_with_trpo(tmp_path: Path)
     sgd_row = next(line for line in markdown.splitlines() if line.startswith("| svrpo-sgd |"))
     cells = [cell.strip() for cell in sgd_row.split("|")]
     assert cells[3].startswith("0.75 [") and cells[4].startswith("0.62 [")  # over trpo; svrpo over it
+
+
+def test_scores_are_normalised_from_the_untrained_policys_return() -> None:
+    """First-iteration returns 8 and 12 (trpo), 10 and 10 (svrpo): R0 = 10 over all runs of the
+    task. trpo finals 20, 20 -> 1, 1; svrpo finals 30, 40 -> (30 - 10) / 10 = 2 and 3: IQM of
+    (2, 3) = 2.5 (normalised from 0 instead it would be 1.5 and 2: 1.75)."""
+    returns = {"A": {"svrpo": [_curve("A", "svrpo", 0, 30.0, 10.0), _curve("A", "svrpo", 1, 40.0, 10.0)],
+                     "trpo": [_curve("A", "trpo", 0, 20.0, 8.0), _curve("A", "trpo", 1, 20.0, 12.0)]}}
+    report = aggregate_report(returns)
+    assert report is not None
+    assert report["tasks"][0]["random_return"] == pytest.approx(10.0)
+    assert report["iqm"]["svrpo"]["value"] == pytest.approx(2.5)
+    assert report["iqm"]["trpo"]["value"] == pytest.approx(1.0)

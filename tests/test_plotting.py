@@ -34,13 +34,14 @@ def write_run(root: Path, task: str, preset: str, seed: int, returns: list[float
         writer = csv.writer(handle)
         writer.writerow(["iteration", "env_steps", "average_return", "variance_ratio", "eval_return",
                          "wall_time"])
-        # Deterministic evaluation after the last iteration only: 1000 + seed. Wall clock:
-        # trpo 2 s per iteration, every other preset 3 s.
+        # Deterministic evaluation halfway (500 + seed: not the final one) and after the last
+        # iteration (1000 + seed). Wall clock: trpo 2 s per iteration, every other preset 3 s.
         seconds = 2.0 if preset == "trpo" else 3.0
         for index, value in enumerate(returns):
             ratio = "" if ratios is None else repr(float(ratios[index]))
             cell = "" if math.isnan(value) else repr(float(value))
-            evaluation = repr(1000.0 + seed) if index == len(returns) - 1 else ""
+            evaluation = {len(returns) // 2 - 1: repr(500.0 + seed),
+                          len(returns) - 1: repr(1000.0 + seed)}.get(index, "")
             writer.writerow([index + 1, (index + 1) * STEPS_PER_ITERATION, cell, ratio, evaluation,
                              repr(seconds * (index + 1))])
     return run_dir
