@@ -13,6 +13,7 @@ from svrpo.experiments.aggregate import (
     normalised,
     probability_of_improvement,
     stratified_bootstrap,
+    untrained_return,
     write_aggregate,
 )
 from svrpo.plotting import RunCurve
@@ -117,3 +118,45 @@ def test_scores_are_normalised_from_the_untrained_policys_return() -> None:
     assert report["tasks"][0]["random_return"] == pytest.approx(10.0)
     assert report["iqm"]["svrpo"]["value"] == pytest.approx(2.5)
     assert report["iqm"]["trpo"]["value"] == pytest.approx(1.0)
+
+
+def test_the_untrained_return_is_each_runs_first_recorded_one() -> None:
+    """No episode finishes in the first iterations (Swimmer, HalfCheetah: NaN there): R0 is the
+    mean of each run's first finite return, here -300 and -200 -> -250, not 0."""
+    early = _curve("A", "trpo", 0, -50.0, -300.0)
+    early.values[:3] = np.nan
+    late = _curve("A", "trpo", 1, -50.0, -200.0)
+    late.values[:1] = np.nan
+    assert untrained_return([early, late]) == pytest.approx(-250.0)
+    assert np.isnan(untrained_return([_curve("A", "trpo", 0, np.nan, np.nan)]))
+    svrpo = [_curve("A", "svrpo", 0, -100.0, -250.0), _curve("A", "svrpo", 1, -150.0, -250.0)]
+    report = aggregate_report({"A": {"svrpo": svrpo, "trpo": [early, late]}})
+    assert report is not None
+    assert report["tasks"][0]["random_return"] == pytest.approx(-250.0)
+    # (-100 + 250) / (-50 + 250) = 0.75, (-150 + 250) / 200 = 0.5: IQM of two runs = 0.625.
+    assert report["iqm"]["svrpo"]["value"] == pytest.approx(0.625)
+    assert report["probability_of_improvement_over_trpo"]["svrpo"]["value"] == pytest.approx(0.0)
+
+
+def test_a_task_trpo_does_not_improve_is_left_out_of_the_iqm_and_kept_in_the_probabilities(
+        tmp_path: Path) -> None:
+    """Task A normalises (R0 0, trpo 10; svrpo 20, 20 -> 2, 2). Task B: trpo ends at -60 below
+    the untrained -50, so (R - R0) / (R_trpo - R0) would score svrpo's worse -70 as 2, above
+    trpo's 1: B is left out of the IQM (svrpo 2.0), and P(svrpo > trpo) = (1 + 0) / 2 = 0.5 from
+    the returns of both tasks."""
+    returns = {
+        "A": {"svrpo": [_curve("A", "svrpo", s, 20.0) for s in (0, 1)],
+              "trpo": [_curve("A", "trpo", s, 10.0) for s in (0, 1)]},
+        "B": {"svrpo": [_curve("B", "svrpo", s, -70.0, -50.0) for s in (0, 1)],
+              "trpo": [_curve("B", "trpo", s, -60.0, -50.0) for s in (0, 1)]},
+    }
+    report = aggregate_report(returns)
+    assert report is not None
+    assert [t["task"] for t in report["tasks"]] == ["A"]
+    assert [t["task"] for t in report["excluded_from_iqm"]] == ["B"]
+    assert report["probability_tasks"] == ["A", "B"]
+    assert report["iqm"]["svrpo"]["value"] == pytest.approx(2.0)
+    assert report["probability_of_improvement_over_trpo"]["svrpo"]["value"] == pytest.approx(0.5)
+    markdown = write_aggregate(report, tmp_path, "figure1")[0].read_text()
+    assert "across 2 tasks (A, B)" in markdown
+    assert "Left out of the IQM" in markdown and "B (TRPO's final return -60.0" in markdown

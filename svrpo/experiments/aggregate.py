@@ -18,6 +18,7 @@ not install beside this project's pinned NumPy and SciPy).
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -83,14 +84,35 @@ BASE = "svrpo"
 P(svrpo > ablation), the question its paper figure asks (SVRG vs SGD, Fisher vs identity)."""
 
 
-def aggregate_report(returns: Mapping[str, Mapping[str, Sequence[RunCurve]]]) -> dict[str, Any] | None:
-    """IQM of normalised final returns per preset, P(preset > trpo) and, when svrpo is among
-    the presets, P(svrpo > preset) for every other SVRPO preset, over the tasks where every
-    preset and trpo have runs; None when fewer than one such task or no trpo.
+def untrained_return(runs: Sequence[RunCurve]) -> float:
+    """R0: the mean over runs of each run's first finite average_return (NaN if none has one).
 
-    Normalisation per task: 0 = the initial policy's return (mean over every run of the task of
-    its first iteration's average_return: the same untrained Gaussian policy family for every
-    preset), 1 = TRPO's mean final return (table.py's final-return definition).
+    The first iteration is the untrained policy; on tasks whose episodes outlast the first batch
+    (Swimmer, HalfCheetah: every episode is 1,000 steps and the staggered first episodes are cut
+    short) the first iteration has no finished episode, and the first one that has is the
+    nearest the untrained policy there is."""
+    firsts = []
+    for run in runs:
+        finite = np.asarray(run.values, dtype=np.float64)
+        finite = finite[np.isfinite(finite)]
+        if finite.size:
+            firsts.append(float(finite[0]))
+    return float(np.mean(firsts)) if firsts else math.nan
+
+
+def aggregate_report(returns: Mapping[str, Mapping[str, Sequence[RunCurve]]]) -> dict[str, Any] | None:
+    """Across the tasks where every preset and trpo have runs: P(preset > trpo) and, when svrpo
+    is among the presets, P(svrpo > preset) for every other SVRPO preset, from the final returns
+    themselves (the probability of improvement compares runs within a task, so it needs no
+    normalisation); and the IQM of normalised final returns per preset over the tasks that can
+    be normalised. None when there is no such task or no trpo.
+
+    Normalisation per task: 0 = the untrained policy's return (untrained_return over every run
+    of the task: the same untrained Gaussian policy family for every preset), 1 = TRPO's mean
+    final return (table.py's final-return definition). A task where TRPO's final return is not
+    above the untrained policy's cannot be normalised this way (the scale would be inverted or
+    unbounded): it is left out of the IQM, listed with its two returns, and kept in the
+    probabilities.
     """
     from svrpo.experiments.table import smoothed_seeds
 
@@ -100,28 +122,31 @@ def aggregate_report(returns: Mapping[str, Mapping[str, Sequence[RunCurve]]]) ->
     if REFERENCE not in presets or len(presets) < 2 or not tasks:
         return None
     finals: dict[str, list[np.ndarray]] = {p: [] for p in presets}
-    used = []
+    scores: dict[str, list[np.ndarray]] = {p: [] for p in presets}
+    used, excluded = [], []
     for task in tasks:
         final = {p: smoothed_seeds(returns[task][p])[1][:, -1] for p in presets}
-        first = np.array([float(run.values[0]) for p in presets for run in returns[task][p]
-                          if len(run.values) and np.isfinite(run.values[0])])
-        random_return = float(first.mean()) if first.size else 0.0
+        random_return = untrained_return([run for p in presets for run in returns[task][p]])
         reference = float(np.nanmean(final[REFERENCE]))
-        try:
-            scores = {p: normalised(final[p], random_return, reference) for p in presets}
-        except ValueError:
-            continue  # TRPO did not move from the initial policy: nothing to normalise by
+        entry = {"task": task, "random_return": random_return, "trpo_final_return": reference}
         for p in presets:
-            finals[p].append(scores[p][np.isfinite(scores[p])])
-        used.append({"task": task, "random_return": random_return, "trpo_final_return": reference})
-    if not used:
-        return None
-    report: dict[str, Any] = {"tasks": used, "iqm": {}, "probability_of_improvement_over_trpo": {},
+            finals[p].append(final[p][np.isfinite(final[p])])
+        if not reference > random_return:  # also NaN: nothing to normalise by
+            excluded.append(entry)
+            continue
+        for p in presets:
+            normal = normalised(final[p], random_return, reference)
+            scores[p].append(normal[np.isfinite(normal)])
+        used.append(entry)
+    report: dict[str, Any] = {"tasks": used, "excluded_from_iqm": excluded,
+                              "probability_tasks": tasks, "iqm": {},
+                              "probability_of_improvement_over_trpo": {},
                               "probability_of_svrpo_over_preset": {}}
     for p in presets:
-        estimate = stratified_bootstrap(iqm, finals[p])
-        report["iqm"][p] = {"value": estimate.value, "ci": [estimate.low, estimate.high],
-                            "runs": int(sum(len(s) for s in finals[p]))}
+        if used:
+            estimate = stratified_bootstrap(iqm, scores[p])
+            report["iqm"][p] = {"value": estimate.value, "ci": [estimate.low, estimate.high],
+                                "runs": int(sum(len(s) for s in scores[p]))}
         if p != REFERENCE:
             poi = stratified_bootstrap(probability_of_improvement, finals[p], finals[REFERENCE])
             report["probability_of_improvement_over_trpo"][p] = {"value": poi.value,
@@ -145,23 +170,30 @@ def write_aggregate(report: dict[str, Any], out_dir: Path, title: str) -> list[P
     out_dir.mkdir(parents=True, exist_ok=True)
     json_path, md_path = out_dir / "aggregate.json", out_dir / "aggregate.md"
     json_path.write_text(json.dumps(report, indent=2) + "\n")
-    tasks = ", ".join(t["task"] for t in report["tasks"])
+    tasks = ", ".join(report["probability_tasks"])
     over_preset = report.get("probability_of_svrpo_over_preset", {})
     header = "| preset | IQM of normalised final return [95% CI] | P(preset > trpo) [95% CI] |"
     rule = "|---|---|---|"
     if over_preset:
         header += f" P({BASE} > preset) [95% CI] |"
         rule += "---|"
-    lines = [f"# {title}: across {len(report['tasks'])} tasks ({tasks})", "", header, rule]
-    for preset, iqm_value in report["iqm"].items():
-        row = (f"| {preset} | {_interval(iqm_value)} | "
+    lines = [f"# {title}: across {len(report['probability_tasks'])} tasks ({tasks})", "", header, rule]
+    for preset in report["iqm"] or report["probability_of_improvement_over_trpo"]:
+        row = (f"| {preset} | {_interval(report['iqm'].get(preset))} | "
                f"{_interval(report['probability_of_improvement_over_trpo'].get(preset))} |")
         if over_preset:
             row += f" {_interval(over_preset.get(preset))} |"
         lines.append(row)
+    if report["excluded_from_iqm"]:
+        left_out = "; ".join(f"{t['task']} (TRPO's final return {t['trpo_final_return']:.1f}, the "
+                             f"untrained policy's {t['random_return']:.1f})"
+                             for t in report["excluded_from_iqm"])
+        lines += ["", f"Left out of the IQM, because TRPO's final return there is not above the "
+                      f"untrained policy's: {left_out}. The probabilities include every task."]
     lines += ["", "Normalised final return per task: (R - R0) / (R_trpo - R0), R the run's final return "
-              "(mean training return over the last 10% of iterations), R0 the mean first-iteration "
-              "return over the task's runs (the untrained policy), R_trpo TRPO's mean final return. "
+              "(mean training return over the last 10% of iterations), R0 the mean over the task's "
+              "runs of their first recorded return (the untrained policy), R_trpo TRPO's mean final "
+              "return. P(X > Y) compares final returns within each task and needs no normalisation. "
               "IQM: mean of the middle 50% of all runs pooled over tasks; P(X > Y): per task the share "
               "of (X run, Y run) pairs with X > Y (ties one half), averaged over tasks; 95% CIs from "
               "2,000 stratified bootstrap resamples (runs resampled within each task), Agarwal et al. "
