@@ -154,6 +154,25 @@ def test_one_seed_has_no_interval_and_short_runs_compare_on_common_iterations(tm
     assert svrpo["percent_of_trpo_steps"] == "25.0"
 
 
+def test_reaching_a_trpo_that_did_not_improve_is_not_reported_as_a_speed_up(tmp_path: Path) -> None:
+    """TRPO starts at 50 and ends at 31.5 (below the untrained policy's mean first return, 50):
+    every curve reaches that at once, so neither preset gets a percentage; where TRPO improves
+    (Swimmer, 1 -> 4 against svrpo's 5 -> 8) the percentage stays."""
+    root = tmp_path / "runs"
+    for seed in (0, 1):
+        write_run(root, "Ant-v5", "trpo", seed, [50.0 - i for i in range(20)])
+        write_run(root, "Ant-v5", "svrpo", seed, [50.0] * 20)
+    write_run(root, "Swimmer-v5", "trpo", 0, [1.0, 2.0, 3.0, 4.0])
+    write_run(root, "Swimmer-v5", "svrpo", 0, [5.0, 6.0, 7.0, 8.0])
+    assert main(["plot", str(root), "--report-dir", str(tmp_path / "out")]) == 0
+    table = read_table(tmp_path / "out" / "figure2-laptop" / "table.csv")
+    for preset in ("trpo", "svrpo"):
+        row = table[("Ant-v5", preset)]
+        assert (row["trpo_improved"], row["samples_to_trpo_final_text"], row["wall_to_trpo_final_text"]) == (
+            "False", "TRPO did not improve", "TRPO did not improve")
+    assert table[("Swimmer-v5", "svrpo")]["samples_to_trpo_final_text"] == "25% (100 steps)"
+    assert table[("Swimmer-v5", "svrpo")]["trpo_improved"] == "True"
+
 def test_plot_run_dirs_and_plain_roots_work_as_before(tmp_path: Path) -> None:
     root = tmp_path / "runs"
     write_experiment(root)

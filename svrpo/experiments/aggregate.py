@@ -18,7 +18,6 @@ not install beside this project's pinned NumPy and SciPy).
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +26,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import trim_mean
 
+from svrpo.experiments.table import smoothed_seeds, untrained_return
 from svrpo.plotting import RunCurve
 
 Scores = Sequence[np.ndarray]
@@ -84,22 +84,6 @@ BASE = "svrpo"
 P(svrpo > ablation), the question its paper figure asks (SVRG vs SGD, Fisher vs identity)."""
 
 
-def untrained_return(runs: Sequence[RunCurve]) -> float:
-    """R0: the mean over runs of each run's first finite average_return (NaN if none has one).
-
-    The first iteration is the untrained policy; on tasks whose episodes outlast the first batch
-    (Swimmer, HalfCheetah: every episode is 1,000 steps and the staggered first episodes are cut
-    short) the first iteration has no finished episode, and the first one that has is the
-    nearest the untrained policy there is."""
-    firsts = []
-    for run in runs:
-        finite = np.asarray(run.values, dtype=np.float64)
-        finite = finite[np.isfinite(finite)]
-        if finite.size:
-            firsts.append(float(finite[0]))
-    return float(np.mean(firsts)) if firsts else math.nan
-
-
 def aggregate_report(returns: Mapping[str, Mapping[str, Sequence[RunCurve]]]) -> dict[str, Any] | None:
     """Across the tasks where every preset and trpo have runs: P(preset > trpo) and, when svrpo
     is among the presets, P(svrpo > preset) for every other SVRPO preset, from the final returns
@@ -114,8 +98,6 @@ def aggregate_report(returns: Mapping[str, Mapping[str, Sequence[RunCurve]]]) ->
     unbounded): it is left out of the IQM, listed with its two returns, and kept in the
     probabilities.
     """
-    from svrpo.experiments.table import smoothed_seeds
-
     presets = sorted({p for by_preset in returns.values() for p in by_preset},
                      key=lambda p: (p == REFERENCE, p))
     tasks = [t for t, by_preset in returns.items() if all(by_preset.get(p) for p in presets)]

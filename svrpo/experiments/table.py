@@ -32,6 +32,8 @@ from svrpo.plotting import RunCurve, common_length, mean_and_ci, smooth
 FINAL_FRACTION = 0.1
 """Share of the last iterations averaged into a run's final return."""
 REFERENCE_PRESET = "trpo"
+NOT_IMPROVED = "TRPO did not improve"
+"""The reach columns where TRPO's final return is not above the untrained policy's."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,9 @@ class TableRow:
     """Seed-mean wall_time at the iteration where S(i) first reaches TRPO's final mean return."""
     percent_of_trpo_wall: float = math.nan
     """wall_to_trpo_final_s / TRPO's seed-mean total wall_time x 100 (a researcher pays in hours)."""
+    trpo_improved: bool = True
+    """Whether TRPO's final mean return is above the untrained policy's (untrained_return over
+    the task's runs); if not, every curve "reaches" it at once and the reach columns say so."""
 
 
 def final_window(iterations: int) -> int:
@@ -79,6 +84,22 @@ def smoothed_seeds(runs: Sequence[RunCurve]) -> tuple[np.ndarray, np.ndarray]:
     window = final_window(length)
     curves = np.stack([smooth(run.values[:length].astype(np.float64), window) for run in runs])
     return runs[0].env_steps[:length], curves
+
+
+def untrained_return(runs: Sequence[RunCurve]) -> float:
+    """R0: the mean over runs of each run's first finite average_return (NaN if none has one).
+
+    The first iteration is the untrained policy; on tasks whose episodes outlast the first batch
+    (Swimmer, HalfCheetah: every episode is 1,000 steps and the staggered first episodes are cut
+    short) the first iteration has no finished episode, and the first one that has is the
+    nearest the untrained policy there is."""
+    firsts = []
+    for run in runs:
+        finite = np.asarray(run.values, dtype=np.float64)
+        finite = finite[np.isfinite(finite)]
+        if finite.size:
+            firsts.append(float(finite[0]))
+    return float(np.mean(firsts)) if firsts else math.nan
 
 
 def first_reaching(env_steps: np.ndarray, curve: np.ndarray, target: float) -> float:
@@ -100,9 +121,11 @@ def summarize(returns: Curves, variance: Curves | None = None, evals: Curves | N
     for task, presets in returns.items():
         reference = presets.get(REFERENCE_PRESET)
         target, reference_steps, reference_wall = math.nan, math.nan, math.nan
+        improved = True
         if reference:
             steps, curves = smoothed_seeds(reference)
             target, reference_steps = float(_seed_mean(curves)[-1]), float(steps[-1])
+            improved = bool(target > untrained_return([run for runs in presets.values() for run in runs]))
             if wall is not None:
                 reference_wall = float(_wall_curve(wall[task][REFERENCE_PRESET], len(steps))[-1])
         for preset, runs in presets.items():
@@ -129,7 +152,8 @@ def summarize(returns: Curves, variance: Curves | None = None, evals: Curves | N
                 env_steps=int(steps[-1]), final_return=mean, final_return_low=low,
                 final_return_high=high, steps_to_trpo_final=reach,
                 percent_of_trpo_steps=100.0 * reach / reference_steps,
-                has_reference=bool(reference), median_variance_ratio=_median_ratio(ratios), **extra,
+                has_reference=bool(reference), trpo_improved=improved,
+                median_variance_ratio=_median_ratio(ratios), **extra,
             ))
     return rows
 
@@ -170,9 +194,11 @@ def _median_ratio(runs: Sequence[RunCurve]) -> float:
 
 
 def reach_text(row: TableRow) -> str:
-    """'35% (350,000 steps)', 'not reached' or 'n/a'."""
+    """'35% (350,000 steps)', 'not reached', 'TRPO did not improve' or 'n/a'."""
     if not row.has_reference:
         return "n/a"
+    if not row.trpo_improved:
+        return NOT_IMPROVED
     if math.isnan(row.steps_to_trpo_final):
         return "not reached"
     return f"{row.percent_of_trpo_steps:.0f}% ({row.steps_to_trpo_final:,.0f} steps)"
@@ -197,9 +223,12 @@ def eval_text(row: TableRow) -> str:
 
 
 def wall_text(row: TableRow) -> str:
-    """'42% (1,234 s)', 'not reached' or 'n/a' (no TRPO runs, or no wall-clock curves)."""
+    """'42% (1,234 s)', 'not reached', 'TRPO did not improve' or 'n/a' (no TRPO runs, or no
+    wall-clock curves)."""
     if not row.has_reference:
         return "n/a"
+    if not row.trpo_improved:
+        return NOT_IMPROVED
     if math.isnan(row.steps_to_trpo_final):
         return "not reached"
     if math.isnan(row.percent_of_trpo_wall):

@@ -1,0 +1,95 @@
+"""Copy the tables of the regenerated reports into results/RESULTS.md.
+
+RESULTS.md shows each experiment's table (results/EXP/table.md) and across-task aggregate
+(results/EXP/aggregate.md) under the experiment's returns figure. After `svrpo plot` has rewritten
+the reports, this replaces, in every section that shows `EXP/returns.png` above the "Previous
+results" part, the first `| task |` table with EXP's table and the first `| preset |` table with
+EXP's aggregate (with its "Left out of the IQM" sentence, when it has one). The prose is left
+to the reader to update; tests/test_docs.py fails while a table row is not a report's.
+
+    python benchmarks/sync_results.py            # rewrite results/RESULTS.md in place
+    python benchmarks/sync_results.py --check    # exit 1 if it would change anything
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "results"
+FIGURE = re.compile(r"!\[[^\]]*\]\(([\w.-]+)/returns\.png\)")
+PREVIOUS = "# Previous results"
+LEFT_OUT = "Left out of the IQM"
+
+
+def blocks(text: str) -> list[str]:
+    """Paragraphs of a report: tables and sentences separated by blank lines."""
+    return [block.strip() for block in text.split("\n\n") if block.strip()]
+
+
+def report_table(experiment: str, name: str) -> tuple[str, str | None]:
+    """(the report's table, the 'Left out' paragraph or None) of results/EXP/NAME.md."""
+    parts = blocks((RESULTS / experiment / name).read_text())
+    table = next(part for part in parts if part.startswith("|"))
+    left_out = next((part for part in parts if part.startswith(LEFT_OUT)), None)
+    return table, left_out
+
+
+def sync(text: str) -> str:
+    head, marker, tail = text.partition(PREVIOUS)
+    lines = head.split("\n")
+    out: list[str] = []
+    experiment: str | None = None
+    pending: set[str] = set()
+    index = 0
+    while index < len(lines):
+        line = lines[index]
+        figure = FIGURE.search(line)
+        if figure and (RESULTS / figure.group(1) / "table.md").exists():
+            experiment, pending = figure.group(1), {"table.md", "aggregate.md"}
+        kind = ("table.md" if line.startswith("| task |") else
+                "aggregate.md" if line.startswith("| preset | IQM") else None)
+        if experiment and kind in pending:
+            assert kind is not None
+            pending.discard(kind)
+            end = index
+            while end < len(lines) and lines[end].startswith("|"):
+                end += 1
+            table, left_out = report_table(experiment, kind)
+            out.extend(table.split("\n"))
+            # drop the old 'Left out' paragraph after the aggregate, then write the new one
+            if kind == "aggregate.md":
+                after = end
+                while after < len(lines) and not lines[after].strip():
+                    after += 1
+                if after < len(lines) and lines[after].startswith(LEFT_OUT):
+                    end = after
+                    while end < len(lines) and lines[end].strip():
+                        end += 1
+                if left_out:
+                    out.extend(["", left_out])
+            index = end
+            continue
+        out.append(line)
+        index += 1
+    return "\n".join(out) + marker + tail
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="exit 1 if RESULTS.md is out of date")
+    args = parser.parse_args()
+    path = RESULTS / "RESULTS.md"
+    before = path.read_text()
+    after = sync(before)
+    if args.check:
+        sys.exit(0 if after == before else 1)
+    path.write_text(after)
+    print(f"{'updated' if after != before else 'unchanged'}: {path}")
+
+
+if __name__ == "__main__":
+    main()
