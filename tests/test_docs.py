@@ -55,3 +55,14 @@ def test_every_results_table_row_is_a_row_of_a_committed_report() -> None:
     assert len(numeric) > 40  # the tables are there to check
     stale = sorted(numeric - report_rows)
     assert not stale, stale
+
+
+def test_results_tables_are_the_current_reports_under_their_own_figures() -> None:
+    """benchmarks/sync_results.py --check: each section's tables are those of the experiment
+    whose returns figure heads it (a row copied under the wrong figure passes the test above)."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "sync_results.py"), "--check"],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, "results/RESULTS.md is out of date: run python benchmarks/sync_results.py"
