@@ -2,7 +2,9 @@
 statistical precipice"): the interquartile mean with stratified-bootstrap confidence intervals,
 and the probability of improvement of one method over another.
 
-Inputs are normalised scores, one array per task of shape (runs,) - a run is one seed. Pure
+Inputs are scores, one array per task of shape (runs,) - a run is one seed: normalised final
+returns for the IQM (it pools tasks), the final returns themselves for P(X > Y) (it compares
+runs within a task, so any increasing rescaling of a task leaves it unchanged). Pure
 NumPy/SciPy (the `rliable` package implements the same estimators but pins `arch<8`, which does
 not install beside this project's pinned NumPy and SciPy).
 
@@ -30,7 +32,7 @@ from svrpo.experiments.table import smoothed_seeds, untrained_return
 from svrpo.plotting import RunCurve
 
 Scores = Sequence[np.ndarray]
-"""One (runs,) array of normalised scores per task."""
+"""One (runs,) array of scores per task (normalised for the IQM; returns for P(X > Y))."""
 
 
 @dataclass(frozen=True)
