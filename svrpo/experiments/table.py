@@ -103,7 +103,8 @@ def untrained_return(runs: Sequence[RunCurve]) -> float:
 
 
 def first_reaching(env_steps: np.ndarray, curve: np.ndarray, target: float) -> float:
-    """env_steps at the first index with curve >= target (NaN if none, or target is NaN)."""
+    """env_steps at the first index with curve >= target (NaN if none, or target is NaN); any
+    per-iteration axis works in place of env_steps (the table passes wall_time too)."""
     reached = np.flatnonzero(np.nan_to_num(curve, nan=-np.inf) >= target)
     return float(env_steps[reached[0]]) if reached.size and math.isfinite(target) else math.nan
 
@@ -131,20 +132,20 @@ def summarize(returns: Curves, variance: Curves | None = None, evals: Curves | N
         for preset, runs in presets.items():
             steps, curves = smoothed_seeds(runs)
             finals = curves[:, -1]
-            mean = float(_seed_mean(curves)[-1])
+            seed_mean = _seed_mean(curves)
+            mean = float(seed_mean[-1])
             low, high = math.nan, math.nan
             if np.isfinite(finals).sum() >= 2:
                 _, ci_low, ci_high = mean_and_ci(finals[np.isfinite(finals), None])
                 low, high = float(ci_low[0]), float(ci_high[0])
-            reach = first_reaching(steps, _seed_mean(curves), target)
+            reach = first_reaching(steps, seed_mean, target)
             ratios = [] if variance is None else variance.get(task, {}).get(preset, [])
             extra = {}
             if evals is not None:
                 extra.update(_final_eval(evals[task][preset]))
             if wall is not None:
-                reached = np.flatnonzero(np.nan_to_num(_seed_mean(curves), nan=-np.inf) >= target)
-                if reached.size and math.isfinite(target):
-                    seconds = float(_wall_curve(wall[task][preset], curves.shape[1])[reached[0]])
+                seconds = first_reaching(_wall_curve(wall[task][preset], curves.shape[1]), seed_mean, target)
+                if math.isfinite(seconds):
                     extra.update(wall_to_trpo_final_s=seconds,
                                  percent_of_trpo_wall=100.0 * seconds / reference_wall)
             rows.append(TableRow(
