@@ -82,6 +82,7 @@ def test_aggregate_report_normalises_by_the_initial_policy_and_trpo() -> None:
     assert report["iqm"]["svrpo"]["value"] == pytest.approx(1.75)
     assert report["iqm"]["trpo"]["value"] == pytest.approx(1.0)
     assert report["probability_of_improvement_over_trpo"]["svrpo"]["value"] == pytest.approx(0.75)
+    assert report["probability_over_trpo_per_task"] == {"svrpo": {"A": 1.0, "B": 0.5}}
     assert [t["random_return"] for t in report["tasks"]] == [0.0, 0.0]
     assert report["probability_of_svrpo_over_preset"] == {}  # no ablation among the presets
     assert aggregate_report({"A": {"svrpo": returns["A"]["svrpo"]}}) is None  # no TRPO to compare with
@@ -105,6 +106,12 @@ def test_an_ablation_is_compared_with_svrpo_as_well_as_with_trpo(tmp_path: Path)
     sgd_row = next(line for line in markdown.splitlines() if line.startswith("| svrpo-sgd |"))
     cells = [cell.strip() for cell in sgd_row.split("|")]
     assert cells[3].startswith("0.75 [") and cells[4].startswith("0.62 [")  # over trpo; svrpo over it
+    # Per task: svrpo beats both trpo runs on A and B (1, 1); sgd (15, 40) vs (10, 10) on A is
+    # 1, (50, 150) vs (100, 100) on B is 0.5.
+    assert report["probability_over_trpo_per_task"] == {"svrpo": {"A": 1.0, "B": 1.0},
+                                                        "svrpo-sgd": {"A": 1.0, "B": 0.5}}
+    assert "| task | P(svrpo > trpo) | P(svrpo-sgd > trpo) |" in markdown
+    assert "| B | 1.00 | 0.50 |" in markdown
 
 
 def test_scores_are_normalised_from_the_untrained_policys_return() -> None:

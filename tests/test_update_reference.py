@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import pytest
 import torch
 
-from svrpo.config import Config, Estimator, make_preset
+from svrpo.config import Config, Estimator, differing_fields, make_preset
 from svrpo.objectives import SurrogateBatch
 from svrpo.parameters import flat_parameters, set_flat_parameters
 from svrpo.parts import update_parts
@@ -534,3 +534,25 @@ def test_fisher_vector_product_is_the_explicit_fisher_at_the_w_it_was_built() ->
         # ...and a product built after the move is F at the new w.
         torch.testing.assert_close(fisher_vector_product(policy, observations, damping)(v), moved_fisher @ v,
                                    rtol=0, atol=1e-10)
+
+
+def test_first_svrg_step_with_the_full_fisher_is_trpos_step() -> None:
+    """At w = w~ the SVRG estimate is g~ exactly, and nu = 1 builds the Fisher on every row in
+    order, so an svrpo update that accepts one step and then stops is TRPO's update bit for bit
+    (the modern-scale reading in results/RESULTS.md rests on this). One inner step of each."""
+    policy_trpo, policy_svrpo = entry_policy(seed=11), entry_policy(seed=11)
+    rows = sampled_rows(flat_parameters(policy_trpo), seed=12)
+    trpo = make_preset("trpo").replace(**{k: getattr(make_config(), k) for k in (
+        "batch_size", "total_steps", "hidden_sizes", "num_workers", "envs_per_worker",
+        "variance_probe_batches", "cg_iters", "cg_residual_tol", "cg_damping", "max_kl",
+        "backtrack_ratio", "max_backtracks")})
+    svrpo = make_config(fisher_subsample=1.0, inner_steps=1)
+    assert set(differing_fields(trpo, svrpo)) <= {"estimator", "minibatch_size", "inner_steps",
+                                                  "fisher_subsample"}
+    start = flat_parameters(policy_trpo)
+    for policy, config in ((policy_trpo, trpo), (policy_svrpo, svrpo)):
+        stats = update_policy(policy, surrogate_batch(rows), update_parts(config),
+                              torch.Generator().manual_seed(13), torch.Generator().manual_seed(14))
+        assert stats.inner_steps_accepted == 1
+    assert not torch.equal(flat_parameters(policy_svrpo), start)  # it moved
+    assert torch.equal(flat_parameters(policy_svrpo), flat_parameters(policy_trpo))

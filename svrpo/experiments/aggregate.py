@@ -125,7 +125,8 @@ def aggregate_report(returns: Mapping[str, Mapping[str, Sequence[RunCurve]]]) ->
     report: dict[str, Any] = {"tasks": used, "excluded_from_iqm": excluded,
                               "probability_tasks": tasks, "iqm": {},
                               "probability_of_improvement_over_trpo": {},
-                              "probability_of_svrpo_over_preset": {}}
+                              "probability_of_svrpo_over_preset": {},
+                              "probability_over_trpo_per_task": {}}
     for p in presets:
         if used:
             estimate = stratified_bootstrap(iqm, scores[p])
@@ -135,6 +136,10 @@ def aggregate_report(returns: Mapping[str, Mapping[str, Sequence[RunCurve]]]) ->
             poi = stratified_bootstrap(probability_of_improvement, finals[p], finals[REFERENCE])
             report["probability_of_improvement_over_trpo"][p] = {"value": poi.value,
                                                                  "ci": [poi.low, poi.high]}
+            # The terms the across-task P averages: which tasks carry it.
+            report["probability_over_trpo_per_task"][p] = {
+                task: probability_of_improvement([mine], [theirs])
+                for task, mine, theirs in zip(tasks, finals[p], finals[REFERENCE], strict=True)}
         if BASE in presets and p not in (BASE, REFERENCE):
             base = stratified_bootstrap(probability_of_improvement, finals[BASE], finals[p])
             report["probability_of_svrpo_over_preset"][p] = {"value": base.value,
@@ -168,6 +173,13 @@ def write_aggregate(report: dict[str, Any], out_dir: Path, title: str) -> list[P
         if over_preset:
             row += f" {_interval(over_preset.get(preset))} |"
         lines.append(row)
+    per_task = report.get("probability_over_trpo_per_task", {})
+    if per_task:
+        lines += ["", "P(preset > trpo) on each task (point estimates; the across-task value is their mean):",
+                  "", "| task | " + " | ".join(f"P({p} > trpo)" for p in per_task) + " |",
+                  "|---|" + "---|" * len(per_task)]
+        lines += [f"| {task} | " + " | ".join(f"{per_task[p][task]:.2f}" for p in per_task) + " |"
+                  for task in report["probability_tasks"]]
     if report["excluded_from_iqm"]:
         left_out = "; ".join(f"{t['task']} (TRPO's final return {t['trpo_final_return']:.1f}, the "
                              f"untrained policy's {t['random_return']:.1f})"
