@@ -108,8 +108,11 @@ def _copy(reference: Path, tmp_path: Path) -> Path:
 def _launch(args: list[str], log: Path) -> subprocess.Popen[bytes]:
     """`python -m svrpo.cli` in its own session (so a signal can reach it and its workers)."""
     with open(log, "wb") as handle:
+        # SIGINT at its default, as in a terminal's foreground job: a shell without job control
+        # starts `cmd &` with SIGINT ignored, the child would inherit that and Ctrl-C do nothing.
         return subprocess.Popen([sys.executable, "-m", "svrpo.cli", *args], cwd=REPO, stdout=handle,
-                                stderr=subprocess.STDOUT, start_new_session=True)
+                                stderr=subprocess.STDOUT, start_new_session=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _wait_for_rows(run_dir: Path, count: int, proc: subprocess.Popen[bytes], log: Path) -> None:
