@@ -1,0 +1,49 @@
+"""benchmarks/accepted_steps.py against a case worked by hand (RESULTS.md quotes its numbers)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _script() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("accepted_steps", ROOT / "benchmarks" / "accepted_steps.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["accepted_steps"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _rows(accepted: list[str], kl: list[str]) -> list[dict[str, str]]:
+    return [{"inner_steps_accepted": a, "mean_kl": k} for a, k in zip(accepted, kl, strict=True)]
+
+
+def test_means_halves_and_share_of_multi_step_iterations() -> None:
+    """Seed 0 accepts 1, 3, 2, 2 (halves 1, 3 | 2, 2); seed 1 accepts 1, 1, nan (a refused batch,
+    skipped), halves 1 | 1. Pooled: 1, 3, 2, 2, 1, 1 -> mean 10/6, two or more 3/6; first half
+    1, 3, 1 -> 5/3; second half 2, 2, 1 -> 5/3. KL: empty cells are skipped."""
+    summary = _script().summarize([
+        _rows(["1", "3", "2", "2"], ["0.01", "0.02", "", "0.03"]),
+        _rows(["1", "1", "nan"], ["0.04", "0.0", "nan"]),
+    ])
+    assert summary["accepted"] == pytest.approx(10 / 6)
+    assert summary["two_or_more"] == pytest.approx(0.5)
+    assert summary["first_half"] == pytest.approx(5 / 3)
+    assert summary["second_half"] == pytest.approx(5 / 3)
+    assert summary["mean_kl"] == pytest.approx(0.1 / 5)
+
+
+def test_table_reads_each_preset_of_each_task(tmp_path: Path) -> None:
+    run = tmp_path / "exp" / "Hopper-v5" / "svrpo" / "seed0"
+    run.mkdir(parents=True)
+    (run / "progress.csv").write_text("iteration,inner_steps_accepted,mean_kl\n1,2,0.01\n2,1,0.03\n")
+    lines = _script().table(tmp_path, ["exp"])
+    assert lines[2] == "| exp | Hopper-v5 | svrpo | 1 | 1.50 | 50% | 2.00 | 1.00 | 0.0200 |"
+    assert len(lines) == 3  # no trpo or svrpo-loglik directory: no row for them
