@@ -12,21 +12,24 @@ pi_new) after the inner loop (`mean_kl`). TRPO accepts at most one step by const
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import statistics
+import sys
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from svrpo.logging import read_progress  # noqa: E402
 
 PRESETS = ("svrpo", "svrpo-loglik", "trpo")
 
 
-def _values(rows: list[dict[str, str]], column: str) -> list[float]:
-    values = [float(row[column]) for row in rows if row.get(column, "") != ""]
-    return [value for value in values if math.isfinite(value)]
+def _values(rows: list[dict[str, float]], column: str) -> list[float]:
+    """The column's finite values (an empty cell, or a refused batch's nan, is skipped)."""
+    return [row[column] for row in rows if math.isfinite(row.get(column, math.nan))]
 
 
-def summarize(seed_rows: list[list[dict[str, str]]]) -> dict[str, float]:
-    """Means over the iterations of every seed (halves split per run)."""
+def summarize(seed_rows: list[list[dict[str, float]]]) -> dict[str, float]:
+    """Means over the iterations of every seed (halves split per run); rows as read_progress gives them."""
     accepted: list[float] = []
     first: list[float] = []
     second: list[float] = []
@@ -59,8 +62,7 @@ def table(runs: Path, experiments: list[str]) -> list[str]:
                 files = sorted((task_dir / preset).glob("seed*/progress.csv"))
                 if not files:
                     continue
-                seed_rows = [list(csv.DictReader(file.open())) for file in files]
-                s = summarize(seed_rows)
+                s = summarize([read_progress(file) for file in files])
                 lines.append(
                     f"| {experiment} | {task_dir.name} | {preset} | {len(files)} | {s['accepted']:.2f} | "
                     f"{100 * s['two_or_more']:.0f}% | {s['first_half']:.2f} | {s['second_half']:.2f} | "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import math
 import sys
 from pathlib import Path
 from types import ModuleType
@@ -21,7 +22,8 @@ def _script() -> ModuleType:
     return module
 
 
-def _rows(accepted: list[str], kl: list[str]) -> list[dict[str, str]]:
+def _rows(accepted: list[float], kl: list[float]) -> list[dict[str, float]]:
+    """Rows as svrpo.logging.read_progress returns them (an empty cell reads as nan)."""
     return [{"inner_steps_accepted": a, "mean_kl": k} for a, k in zip(accepted, kl, strict=True)]
 
 
@@ -30,8 +32,8 @@ def test_means_halves_and_share_of_multi_step_iterations() -> None:
     skipped), halves 1 | 1. Pooled: 1, 3, 2, 2, 1, 1 -> mean 10/6, two or more 3/6; first half
     1, 3, 1 -> 5/3; second half 2, 2, 1 -> 5/3. KL: empty cells are skipped."""
     summary = _script().summarize([
-        _rows(["1", "3", "2", "2"], ["0.01", "0.02", "", "0.03"]),
-        _rows(["1", "1", "nan"], ["0.04", "0.0", "nan"]),
+        _rows([1, 3, 2, 2], [0.01, 0.02, math.nan, 0.03]),
+        _rows([1, 1, math.nan], [0.04, 0.0, math.nan]),
     ])
     assert summary["accepted"] == pytest.approx(10 / 6)
     assert summary["two_or_more"] == pytest.approx(0.5)
