@@ -4,7 +4,7 @@
         [--tasks Ant-v5,HalfCheetah-v5] [--sources trpo,svrpo] [--seeds 0,1,2] [--pairs 8]
         [--out benchmarks/results/heldout_surrogate]
 
-From the final checkpoint of each source run (TASK/PRESET/seedS under --runs), draw `pairs`
+From the latest checkpoint of each source run (TASK/PRESET/seedS under --runs), draw `pairs`
 pairs of batches (A, B), each N steps with that policy (B continues A's episodes, the way the
 next iteration's batch would). Then every update preset (svrpo, svrpo-loglik, trpo: their own
 UpdateParts, built from their runs' config.json) updates the same start policy on the same A,
@@ -89,6 +89,9 @@ def one_source(run_dir: Path, update_configs: dict[str, Config], pairs: int, see
     config = Config.from_json((run_dir / "config.json").read_text())
     state, path, _ = checkpoint.load_latest(run_dir / "checkpoints")
     run = build_run(config)
+    # The variance probe is switched off: it does not change the update, only costs time.
+    updates = {name: update_parts(update_config.replace(variance_probe_batches=0))
+               for name, update_config in update_configs.items()}
     rows: list[Row] = []
     try:
         checkpoint.restore_state(run, state, path)
@@ -97,10 +100,8 @@ def one_source(run_dir: Path, update_configs: dict[str, Config], pairs: int, see
             snapshot = snapshot_of(run)
             train = surrogate_batch(run, run.sampler.sample(snapshot, config.batch_size)).data
             heldout = surrogate_batch(run, run.sampler.sample(snapshot, config.batch_size)).data
-            for name, update_config in update_configs.items():
+            for name, parts in updates.items():
                 checkpoint.load_learned_state(run, start)
-                # The variance probe is switched off: it does not change the update, only costs time.
-                parts = update_parts(update_config.replace(variance_probe_batches=0))
                 draws = torch.Generator().manual_seed(seed * 1000 + pair)
                 probes = torch.Generator().manual_seed(0)
                 stats = update_policy(run.policy, train, parts, draws, probes)
@@ -155,7 +156,7 @@ def write_markdown(rows: list[Row], path: Path, command: str) -> None:
                 f"{np.mean([float(r['kl_heldout']) for r in mine]):.4f} |"
             )
     sources = sorted({str(row["source"]) for row in rows})
-    lines += ["", "Sources (final checkpoints): " + ", ".join(f"`{s}`" for s in sources), ""]
+    lines += ["", "Sources (each run's latest checkpoint): " + ", ".join(f"`{s}`" for s in sources), ""]
     path.write_text("\n".join(lines))
 
 
@@ -173,9 +174,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "heldout_surrogate")
     args = parser.parse_args(argv)
     rows: list[Row] = []
+    configs = args.configs or args.runs
     for task in args.tasks.split(","):
         for seed in (int(s) for s in args.seeds.split(",")):
-            configs = args.configs or args.runs
             updates = {name: Config.from_json((configs / task / name / f"seed{seed}" / "config.json")
                                               .read_text()) for name in UPDATES}
             for source in args.sources.split(","):

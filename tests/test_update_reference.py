@@ -542,7 +542,8 @@ def test_first_svrg_step_with_the_full_fisher_is_trpos_step() -> None:
     (the modern-scale reading in results/RESULTS.md rests on this). One inner step of each."""
     policy_trpo, policy_svrpo = entry_policy(seed=11), entry_policy(seed=11)
     rows = sampled_rows(flat_parameters(policy_trpo), seed=12)
-    trpo = make_preset("trpo").replace(**{k: getattr(make_config(), k) for k in (
+    tiny = make_config()
+    trpo = make_preset("trpo").replace(**{k: getattr(tiny, k) for k in (
         "batch_size", "total_steps", "hidden_sizes", "num_workers", "envs_per_worker",
         "variance_probe_batches", "cg_iters", "cg_residual_tol", "cg_damping", "max_kl",
         "backtrack_ratio", "max_backtracks")})
