@@ -89,11 +89,29 @@ def run_sb3(env_id: str, seed: int, iterations: int) -> dict[str, Any]:
     from stable_baselines3.common.evaluation import evaluate_policy
     from stable_baselines3.common.vec_env import VecNormalize
 
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class EpisodeRecorder(BaseCallback):
+        """Every finished training episode as (env steps when it ended, return): both training-return
+        definitions (ours: per-iteration means over the last 10% of iterations; sb3's: last 100
+        episodes) are computed from the same list."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.episodes: list[tuple[int, float]] = []
+
+        def _on_step(self) -> bool:
+            for info in self.locals["infos"]:
+                if "episode" in info:
+                    self.episodes.append((int(self.num_timesteps), float(info["episode"]["r"])))
+            return True
+
     env = VecNormalize(make_vec_env(env_id, n_envs=1, seed=seed), norm_obs=True, norm_reward=False)
     model = TRPO("MlpPolicy", env, seed=seed, device="cpu")
-    tic = time.perf_counter()
-    model.learn(total_timesteps=iterations * 2048)
-    seconds = time.perf_counter() - tic
+    recorder = EpisodeRecorder()
+    tic, cpu_tic = time.perf_counter(), time.process_time()
+    model.learn(total_timesteps=iterations * 2048, callback=recorder)
+    seconds, cpu_seconds = time.perf_counter() - tic, time.process_time() - cpu_tic
     recent = [info["r"] for info in model.ep_info_buffer]
     eval_env = VecNormalize(make_vec_env(env_id, n_envs=1, seed=seed + 1_000_003), norm_obs=True,
                             norm_reward=False, training=False)
@@ -103,8 +121,25 @@ def run_sb3(env_id: str, seed: int, iterations: int) -> dict[str, Any]:
         "seconds": seconds, "env_steps": int(model.num_timesteps),
         "final_eval_return": float(mean_return),
         "train_return_last_100_episodes": float(np.mean(recent)) if recent else float("nan"),
+        "train_return_last_10_percent_iterations": last_tenth_of_iterations(recorder.episodes, iterations),
+        "episodes": recorder.episodes, "cpu_seconds": cpu_seconds,
         "torch_threads": torch.get_num_threads(),
     }
+
+
+def last_tenth_of_iterations(episodes: list[tuple[int, float]], iterations: int,
+                             steps_per_iteration: int = 2048) -> float:
+    """Our training-return definition on sb3's episodes: the mean over the last 10% of iterations
+    of each iteration's mean return of the episodes that ended in it (iterations with no finished
+    episode are skipped, as np.nanmean skips our empty cells)."""
+    first = iterations - max(1, -(-iterations // 10))  # k = ceil(0.1 T), as svrpo.experiments.table
+    per_iteration: dict[int, list[float]] = {}
+    for ended_at, episode_return in episodes:
+        iteration = (ended_at - 1) // steps_per_iteration
+        if iteration >= first:
+            per_iteration.setdefault(iteration, []).append(episode_return)
+    means = [sum(v) / len(v) for v in per_iteration.values()]
+    return sum(means) / len(means) if means else float("nan")
 
 
 def versions() -> dict[str, str]:

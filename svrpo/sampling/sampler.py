@@ -8,14 +8,11 @@ converts the returned arrays to torch.
 from __future__ import annotations
 
 import contextlib
-import multiprocessing as mp
 import os
 import signal
 import weakref
-from collections.abc import Iterator
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
-from multiprocessing.process import BaseProcess
 from typing import Any, NoReturn
 
 import numpy as np
@@ -28,8 +25,8 @@ from svrpo.sampling.rollout_worker import (
     RolloutWorker,
     WorkerChunk,
     first_episode_cuts,
-    worker_main,
 )
+from svrpo.sampling.worker_process import WorkerProcess
 
 _START_TIMEOUT_S = 120.0
 _CLOSE_TIMEOUT_S = 5.0
@@ -120,7 +117,7 @@ class Sampler:
 
         self._broken: str | None = None
         self._local: RolloutWorker | None = None
-        self._procs: list[BaseProcess] = []
+        self._procs: list[WorkerProcess] = []
         self._conns: list[Connection] = []
         self._finalizer: weakref.finalize[..., Any]
         if num_workers == 0:
@@ -129,20 +126,14 @@ class Sampler:
             return
         # Runs on close(), on garbage collection and at interpreter exit: no orphaned workers.
         self._finalizer = weakref.finalize(self, _shutdown, self._procs, self._conns)
-        context = mp.get_context("spawn")
-        with _single_threaded_children():
-            for index in range(num_workers):
-                parent_end, child_end = context.Pipe()
-                args = (child_end, env_id, envs_per_worker, seed, index, max_episode_steps,
-                        worker_cuts(index))
-                proc = context.Process(
-                    target=worker_main, args=args, name=f"svrpo-sampler-{index}", daemon=True
-                )
-                proc.start()
-                # Only the child may hold its end: then a dead child reads as EOF here.
-                child_end.close()
-                self._procs.append(proc)
-                self._conns.append(parent_end)
+        # Each worker is its own interpreter started at svrpo.sampling.worker_process, never
+        # multiprocessing's spawn: spawn re-imports the user's main script in every worker.
+        environment = {**os.environ, **{name: "1" for name in THREAD_ENV_VARS}}
+        for index in range(num_workers):
+            args = (env_id, envs_per_worker, seed, index, max_episode_steps, worker_cuts(index))
+            proc = WorkerProcess(args, environment)
+            self._procs.append(proc)
+            self._conns.append(proc.connection)
         try:
             for index in range(num_workers):
                 self._receive(index, timeout=_START_TIMEOUT_S)
@@ -264,25 +255,6 @@ class Sampler:
         raise WorkerDiedError(self._broken)
 
 
-@contextlib.contextmanager
-def _single_threaded_children() -> Iterator[None]:
-    """Set the BLAS/OpenMP thread variables to 1 while children are spawned, then restore them.
-
-    BLAS reads its thread count when it loads, before any worker code runs, so the variables
-    must already be in the environment a spawned child inherits.
-    """
-    saved = {name: os.environ.get(name) for name in THREAD_ENV_VARS}
-    os.environ.update({name: "1" for name in THREAD_ENV_VARS})
-    try:
-        yield
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-
-
 def _to_batch(chunks: list[WorkerChunk]) -> Batch:
     """Concatenate worker chunks (worker order keeps the env-by-env layout) into torch tensors."""
 
@@ -303,7 +275,7 @@ def _to_batch(chunks: list[WorkerChunk]) -> Batch:
     )
 
 
-def _shutdown(procs: list[BaseProcess], conns: list[Connection]) -> None:
+def _shutdown(procs: list[WorkerProcess], conns: list[Connection]) -> None:
     """Ask workers to exit, then terminate and finally kill stragglers; reap every process."""
     for conn in conns:
         with contextlib.suppress(OSError):
