@@ -58,6 +58,16 @@ def test_named_experiments_are_the_papers_grids(name: str, tasks: list[str], pre
         assert (job.preset, job.experiment, job.scale) == (preset, name, scale)
 
 
+def test_the_plan_is_task_major_then_seed_major_with_the_presets_interleaved(tmp_path: Path) -> None:
+    """Two tasks x three presets x two seeds: within a task, seed 0 of every preset (in the
+    spec's preset order), then seed 1 of every preset; so a backend that starts jobs in plan
+    order trains the presets of a task side by side, at equal load."""
+    spec = load_spec("figure2").with_changes(seeds=2)
+    cells = [job.run_dir.relative_to(tmp_path / "figure2-laptop").parts for job in plan(spec, tmp_path)]
+    assert cells == [(task, preset, f"seed{seed}") for task in ("Swimmer-v5", "Walker2d-v5")
+                     for seed in (0, 1) for preset in ("svrpo", "svrpo-sgd", "trpo")]
+
+
 def test_yaml_spec_and_command_line_changes(tmp_path: Path) -> None:
     path = tmp_path / "grid.yaml"
     path.write_text("tasks: Hopper-v5\npresets: [svrpo-sgd]\nseeds: [3, 7]\nscale: paper\n"

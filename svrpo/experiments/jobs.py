@@ -71,11 +71,16 @@ class JobResult:
 
 
 def plan(spec: ExperimentSpec, root: Path) -> list[RunJob]:
-    """Every run of the grid, task-major then preset then seed (ConfigError for a bad config)."""
+    """Every run of the grid, task-major, then seed, then preset (ConfigError for a bad config).
+
+    Seed-major within a task, the presets interleaved (seed 0 of every preset, then seed 1, ...):
+    a backend that runs jobs in this order trains the presets of a task side by side, beside the
+    same neighbours, so their wall-clock is measured at equal load; preset after preset, one
+    preset would train hours after another beside different neighbours."""
     jobs = []
     for task in spec.tasks:
-        for preset in spec.presets:
-            for seed in spec.seeds:
+        for seed in spec.seeds:
+            for preset in spec.presets:
                 run_dir = root / spec.directory / task / preset / f"seed{seed}"
                 jobs.append(RunJob(run_dir, spec.config(task, preset, seed), preset, spec.name, spec.scale))
     return jobs
