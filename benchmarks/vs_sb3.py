@@ -85,11 +85,10 @@ def run_sb3(env_id: str, seed: int, iterations: int) -> dict[str, Any]:
     import numpy as np
     import torch
     from sb3_contrib import TRPO
+    from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.evaluation import evaluate_policy
     from stable_baselines3.common.vec_env import VecNormalize
-
-    from stable_baselines3.common.callbacks import BaseCallback
 
     class EpisodeRecorder(BaseCallback):
         """Every finished training episode as (env steps when it ended, return): both training-return

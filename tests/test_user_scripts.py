@@ -41,7 +41,8 @@ def _as_script(snippets: list[str], directory: Path) -> str:
 
 def _run(command: list[str], directory: Path, stdin: str | None = None) -> subprocess.CompletedProcess[str]:
     result = subprocess.run(command, cwd=directory, input=stdin, capture_output=True, text=True, timeout=600)
-    assert result.returncode == 0, f"exit {result.returncode}\n{result.stdout[-2000:]}\n{result.stderr[-4000:]}"
+    output = f"{result.stdout[-2000:]}\n{result.stderr[-4000:]}"
+    assert result.returncode == 0, f"exit {result.returncode}\n{output}"
     assert "Traceback" not in result.stderr, result.stderr[-4000:]
     return result
 

@@ -12,6 +12,7 @@ Torch-free, like every module the worker imports (svrpo/sampling/__init__.py).
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import subprocess
 import sys
@@ -50,10 +51,8 @@ class WorkerProcess:
         return self._popen.poll() is None
 
     def join(self, timeout: float | None = None) -> None:
-        try:
+        with contextlib.suppress(subprocess.TimeoutExpired):  # still running: the caller checks
             self._popen.wait(timeout)
-        except subprocess.TimeoutExpired:
-            pass
 
     def terminate(self) -> None:
         if self.is_alive():
