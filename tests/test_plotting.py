@@ -52,7 +52,8 @@ def write_experiment(root: Path) -> None:
 
     Swimmer, with k = 2 (the last 10% of 20 iterations):
     * trpo: seed 0 returns 10 i, seed 1 10 i + 10 -> finals (190+200)/2 = 195 and 205: mean 200,
-      bootstrap CI [195, 205]; the seed-mean smoothed curve is 10 i, >= 200 first at i = 20
+      Student-t CI 200 -+ t_{0.975,1} s / sqrt(2) with s = 10 / sqrt(2): 200 -+ 5 t = [136.5,
+      263.5] (t_{0.975,1} = 12.706205); the seed-mean smoothed curve is 10 i, >= 200 first at i = 20
       (2000 steps): 100% of TRPO's 2000 steps.
     * svrpo: seed 0 20 i (iteration 5 empty), seed 1 20 i + 20 -> smoothed 20 i - 10 and
       20 i + 10 (i >= 2; seed 0 reads 80 at i = 5 and 120 at i = 6), seed mean 20 i except
@@ -113,29 +114,34 @@ def test_report_table_matches_hand_computed_values(
 
     final = ("final_return", "final_return_low", "final_return_high")
     reach = ("steps_to_trpo_final", "percent_of_trpo_steps")
-    assert numbers("Swimmer-v5", "trpo", *final, *reach) == [200.0, 195.0, 205.0, 2000.0, 100.0]
-    assert numbers("Swimmer-v5", "svrpo", *final, *reach) == [400.0, 390.0, 410.0, 1000.0, 50.0]
+    # Two seeds a, b: s / sqrt(2) = |a - b| / 2, so the t-interval is mean -+ t_{0.975,1} |a - b| / 2.
+    t1 = 12.706205
+    assert numbers("Swimmer-v5", "trpo", *final, *reach) == pytest.approx(
+        [200.0, 200.0 - 5 * t1, 200.0 + 5 * t1, 2000.0, 100.0], rel=1e-7)
+    assert numbers("Swimmer-v5", "svrpo", *final, *reach) == pytest.approx(
+        [400.0, 400.0 - 10 * t1, 400.0 + 10 * t1, 1000.0, 50.0], rel=1e-7)
     sgd = numbers("Swimmer-v5", "svrpo-sgd", *final, *reach)
     assert sgd[:3] == [50.0, 50.0, 50.0] and all(math.isnan(v) for v in sgd[3:])
     assert table[("Swimmer-v5", "svrpo-sgd")]["samples_to_trpo_final_text"] == "not reached"
     assert table[("Walker2d-v5", "svrpo")]["samples_to_trpo_final_text"] == "n/a"
     # Walker2d svrpo: 5 i + seed -> finals 97.5 and 98.5.
-    assert numbers("Walker2d-v5", "svrpo", *final) == [98.0, 97.5, 98.5]
+    assert numbers("Walker2d-v5", "svrpo", *final) == pytest.approx([98.0, 98.0 - t1 / 2, 98.0 + t1 / 2])
     assert numbers("Swimmer-v5", "svrpo", "median_variance_ratio") == [0.5]
     assert math.isnan(numbers("Swimmer-v5", "trpo", "median_variance_ratio")[0])
     svrpo = table[("Swimmer-v5", "svrpo")]
     assert (svrpo["seeds"], svrpo["iterations"], svrpo["env_steps"]) == ("2", "20", "2000")
 
     markdown = (report / "table.md").read_text()
-    assert ("| Swimmer-v5 | svrpo | 2 | 2,000 | 400.0 [390.0, 410.0] | 1000.5 [1000.0, 1001.0] | "
+    # Final evaluations 1000 and 1001: 1000.5 -+ t_{0.975,1} / 2 = [994.1, 1006.9].
+    assert ("| Swimmer-v5 | svrpo | 2 | 2,000 | 400.0 [272.9, 527.1] | 1000.5 [994.1, 1006.9] | "
             "50% (1,000 steps) | 75% (30 s) | 0.5 |") in markdown
     assert numbers("Swimmer-v5", "svrpo", "wall_to_trpo_final_s", "percent_of_trpo_wall") == [30.0, 75.0]
     assert numbers("Swimmer-v5", "trpo", "percent_of_trpo_wall") == [100.0]
-    assert ("| Swimmer-v5 | trpo | 2 | 2,000 | 200.0 [195.0, 205.0] | 1000.5 [1000.0, 1001.0] | "
+    assert ("| Swimmer-v5 | trpo | 2 | 2,000 | 200.0 [136.5, 263.5] | 1000.5 [994.1, 1006.9] | "
             "100% (2,000 steps) | 100% (40 s) |  |") in markdown
-    assert ("| Swimmer-v5 | svrpo-sgd | 2 | 2,000 | 50.0 [50.0, 50.0] | 1000.5 [1000.0, 1001.0] | "
+    assert ("| Swimmer-v5 | svrpo-sgd | 2 | 2,000 | 50.0 [50.0, 50.0] | 1000.5 [994.1, 1006.9] | "
             "not reached | not reached | 2 |") in markdown
-    assert ("| Walker2d-v5 | svrpo | 2 | 2,000 | 98.0 [97.5, 98.5] | 1000.5 [1000.0, 1001.0] | n/a | n/a "
+    assert ("| Walker2d-v5 | svrpo | 2 | 2,000 | 98.0 [91.6, 104.4] | 1000.5 [994.1, 1006.9] | n/a | n/a "
             "| 0.25 |") in markdown
 
 

@@ -1,0 +1,69 @@
+"""The per-task interval of svrpo/experiments/table.py against cases worked by hand: a Student-t
+interval for the mean of n seeds, with the t quantiles typed in from a table."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from svrpo.experiments.table import summarize, t_interval, write_markdown
+from svrpo.plotting import RunCurve
+
+T_0975 = {1: 12.706205, 2: 4.302653, 4: 2.776445}
+"""t_{0.975, df}: the two-sided 95% quantiles of Student's t (printed tables)."""
+
+
+def test_t_interval_of_five_seeds_by_hand() -> None:
+    """1, 2, 3, 4, 10: mean 4, deviations -3, -2, -1, 0, 6 -> s^2 = (9 + 4 + 1 + 0 + 36) / 4 =
+    12.5; half-width t_{0.975,4} sqrt(12.5 / 5) = 2.776445 x 1.5811388 = 4.3899."""
+    low, high = t_interval(np.array([1.0, 2.0, 3.0, 4.0, 10.0]))
+    half = T_0975[4] * math.sqrt(12.5 / 5)
+    assert (low, high) == pytest.approx((4.0 - half, 4.0 + half), abs=1e-5)
+    # Wider than the normal (z) interval with the same s, by t / z = 2.776 / 1.960 = 1.42.
+    assert high - low > 2 * 1.96 * math.sqrt(12.5 / 5) * 1.4
+
+
+def test_t_interval_uses_n_minus_one_degrees_of_freedom_and_drops_nan() -> None:
+    """3 finite values (a NaN seed is left out): 10, 20, 30 -> mean 20, s = 10, half-width
+    t_{0.975,2} x 10 / sqrt(3)."""
+    low, high = t_interval([10.0, math.nan, 20.0, 30.0])
+    half = T_0975[2] * 10.0 / math.sqrt(3.0)
+    assert (low, high) == pytest.approx((20.0 - half, 20.0 + half), abs=1e-5)
+    assert t_interval([5.0, 5.0]) == (5.0, 5.0)  # no spread: the point itself
+    assert all(math.isnan(v) for v in t_interval([7.0]))  # one seed: no interval
+    assert all(math.isnan(v) for v in t_interval([7.0, math.nan]))
+    low90, high90 = t_interval([10.0, 20.0, 30.0], confidence=0.9)
+    assert high90 - low90 == pytest.approx(2 * 2.919986 * 10.0 / math.sqrt(3.0), abs=1e-5)  # t_{0.95,2}
+
+
+def _run(preset: str, seed: int, values: list[float]) -> RunCurve:
+    steps = np.arange(1, len(values) + 1) * 10
+    return RunCurve(Path(f"T/{preset}/seed{seed}"), "T", preset, seed, steps, np.array(values, dtype=float))
+
+
+def test_table_rows_give_the_t_interval_of_the_seeds_final_returns(tmp_path: Path) -> None:
+    """Ten iterations (final window k = 1: the last iteration). trpo finals 1, 2, 3, 4, 10 (the
+    case above); svrpo one seed (no interval)."""
+    finals, last_evals = (1.0, 2.0, 3.0, 4.0, 10.0), (0.0, 6.0, 3.0, 3.0, 3.0)
+    returns = {"T": {"svrpo": [_run("svrpo", 0, [0.0] * 9 + [8.0])],
+                     "trpo": [_run("trpo", s, [0.0] * 9 + [v]) for s, v in enumerate(finals)]}}
+    evals = {"T": {"svrpo": [_run("svrpo", 0, [math.nan] * 9 + [1.0])],
+                   "trpo": [_run("trpo", s, [math.nan] * 9 + [v]) for s, v in enumerate(last_evals)]}}
+    rows = {row.preset: row for row in summarize(returns, evals=evals)}
+    half = T_0975[4] * math.sqrt(12.5 / 5)
+    trpo = rows["trpo"]
+    assert (trpo.final_return, trpo.final_return_low, trpo.final_return_high) == pytest.approx(
+        (4.0, 4.0 - half, 4.0 + half), abs=1e-5)
+    # Evaluations 0, 6, 3, 3, 3: mean 3, s^2 = (9 + 9) / 4 = 4.5.
+    eval_half = T_0975[4] * math.sqrt(4.5 / 5)
+    assert (trpo.final_eval_low, trpo.final_eval_high) == pytest.approx((3.0 - eval_half, 3.0 + eval_half),
+                                                                        abs=1e-5)
+    assert rows["svrpo"].final_return == 8.0 and math.isnan(rows["svrpo"].final_return_low)
+    markdown = write_markdown(list(rows.values()), tmp_path / "table.md", "t").read_text()
+    assert "| task | preset | n (seeds) |" in markdown
+    assert f"| T | trpo | 5 | 100 | 4.0 [{4.0 - half:.1f}, {4.0 + half:.1f}] |" in markdown
+    assert "| T | svrpo | 1 | 100 | 8.0 | 1.0 |" in markdown
+    assert "Student-t" in markdown
