@@ -75,7 +75,7 @@ def write_report(experiment: str, scale: str, run_dirs: Sequence[Path], out_dir:
     written.append(write_markdown(rows, out_dir / "table.md", f"{title}: final return and samples "
                                   "to reach TRPO's final return"))
     written.append(write_csv(rows, out_dir / "table.csv"))
-    summary = aggregate_report(returns)
+    summary = aggregate_report(returns, evals)  # evals: the sensitivity table's evaluation reading
     if summary is not None:
         written += write_aggregate(summary, out_dir, title)
     return written
