@@ -4,8 +4,10 @@ RESULTS.md shows each experiment's table (results/EXP/table.md) and across-task 
 (results/EXP/aggregate.md) under the experiment's returns figure. After `svrpo plot` has rewritten
 the reports, this replaces, in every section that shows `EXP/returns.png` above the "Previous
 results" part, the first `| task |` table with EXP's table and the first `| preset |` table with
-EXP's aggregate (with its "Left out of the IQM" sentence, when it has one). The prose is left
-to the reader to update; tests/test_docs.py fails while a table row is not a report's.
+EXP's aggregate (with its "Left out of the IQM" sentence, when it has one), and each table of
+the outside anchor's report (benchmarks/results/sb3_anchor_1M.md, by benchmarks/anchor_table.py)
+wherever a table with the same leading header cells stands. The prose is left to the reader to
+update; tests/test_docs.py fails while a table row is not a report's.
 
     python benchmarks/sync_results.py            # rewrite results/RESULTS.md in place
     python benchmarks/sync_results.py --check    # exit 1 if it would change anything
@@ -23,6 +25,9 @@ RESULTS = ROOT / "results"
 FIGURE = re.compile(r"!\[[^\]]*\]\(([\w.-]+)/returns\.png\)")
 PREVIOUS = "# Previous results"
 LEFT_OUT = "Left out of the IQM"
+ANCHOR = ROOT / "benchmarks" / "results" / "sb3_anchor_1M.md"
+ANCHOR_HEADERS = ("| task | library / preset |", "| task | n (ours, sb3-contrib) |")
+"""The leading cells of the anchor report's tables, in the report's order."""
 
 
 def blocks(text: str) -> list[str]:
@@ -38,8 +43,17 @@ def report_table(experiment: str, name: str) -> tuple[str, str | None]:
     return table, left_out
 
 
+def anchor_tables() -> dict[str, str]:
+    """{leading header cells: table} of the anchor report ({} when it is absent)."""
+    if not ANCHOR.is_file():
+        return {}
+    tables = [part for part in blocks(ANCHOR.read_text()) if part.startswith("|")]
+    return {prefix: table for prefix in ANCHOR_HEADERS for table in tables if table.startswith(prefix)}
+
+
 def sync(text: str) -> str:
     head, marker, tail = text.partition(PREVIOUS)
+    anchors = anchor_tables()
     lines = head.split("\n")
     out: list[str] = []
     experiment: str | None = None
@@ -50,6 +64,14 @@ def sync(text: str) -> str:
         figure = FIGURE.search(line)
         if figure and (RESULTS / figure.group(1) / "table.md").exists():
             experiment, pending = figure.group(1), {"table.md", "aggregate.md"}
+        anchor = next((prefix for prefix in anchors if line.startswith(prefix)), None)
+        if anchor is not None:
+            end = index
+            while end < len(lines) and lines[end].startswith("|"):
+                end += 1
+            out.extend(anchors[anchor].split("\n"))
+            index = end
+            continue
         kind = ("table.md" if line.startswith("| task |") else
                 "aggregate.md" if line.startswith("| preset | IQM") else None)
         if experiment and kind in pending:
