@@ -94,14 +94,14 @@ def one_source(run_dir: Path, update_configs: dict[str, Config], pairs: int, see
                for name, update_config in update_configs.items()}
     rows: list[Row] = []
     try:
-        checkpoint.restore_state(run, state, path)
-        start = checkpoint.learned_state(run)
+        run.load_state_dict(state, path)
+        start = run.learned_state()
         for pair in range(pairs):
             snapshot = snapshot_of(run)
             train = surrogate_batch(run, run.sampler.sample(snapshot, config.batch_size)).data
             heldout = surrogate_batch(run, run.sampler.sample(snapshot, config.batch_size)).data
             for name, parts in updates.items():
-                checkpoint.load_learned_state(run, start)
+                run.load_learned_state(start)
                 draws = torch.Generator().manual_seed(seed * 1000 + pair)
                 probes = torch.Generator().manual_seed(0)
                 stats = update_policy(run.policy, train, parts, draws, probes)
@@ -110,7 +110,7 @@ def one_source(run_dir: Path, update_configs: dict[str, Config], pairs: int, see
                             stats.inner_steps_accepted)
                 rows.append({"source": str(run_dir), "iteration": run.iteration, "pair": pair,
                              "update": name, **gain.__dict__})
-            checkpoint.load_learned_state(run, start)
+            run.load_learned_state(start)
     finally:
         run.sampler.close()
     return rows

@@ -1,4 +1,4 @@
-"""Algorithm 1: a run's parts composed in `build_run` (nowhere else) and one outer iteration.
+"""Algorithm 1: one outer iteration of a run (svrpo/run.py builds the run and owns its state).
 
 Per outer iteration (`run_iteration`, with DESIGN.md's decisions): sample exactly N steps with
 the anchor policy, compute GAE advantages with the current baseline, standardise them over the
@@ -20,98 +20,17 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
-from svrpo import checkpoint
 from svrpo.advantages import generalized_advantages, standardize
-from svrpo.allocator import keep_freed_memory
-from svrpo.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction, explained_variance
-from svrpo.config import Config
-from svrpo.estimators import GradientEstimator
-from svrpo.normalization import RunningMeanStd
+from svrpo.baselines import explained_variance
 from svrpo.objectives import SurrogateBatch, old_log_prob
-from svrpo.parts import UpdateParts, update_parts
-from svrpo.policy import GaussianMlpPolicy
+from svrpo.parameters import nonfinite_tensors
+from svrpo.run import Run, build_run, make_sampler
 from svrpo.sampling.policy_snapshot import PolicySnapshot
-from svrpo.sampling.restarting import RestartingSampler
-from svrpo.sampling.sampler import Batch, Sampler
+from svrpo.sampling.sampler import Batch
 from svrpo.update import UpdateStats, update_policy
 
-
-@dataclass
-class Run:
-    """The mutable state of a run: what a checkpoint holds and a resume restores."""
-
-    config: Config
-    policy: GaussianMlpPolicy
-    baseline: Baseline
-    normalizer: RunningMeanStd | None
-    sampler: RestartingSampler
-    """Replaces its workers when one dies; get_state() is the state after the last batch."""
-    parts: UpdateParts
-    """The policy update's estimator, metric, KL anchor and stopping rule, built from config."""
-    generator: torch.Generator
-    """Mini-batches and Fisher subsets."""
-    probe_generator: torch.Generator
-    """Variance-probe mini-batches only (so the probe does not change training)."""
-    baseline_generator: torch.Generator | None = None
-    """Mini-batch order of the `mlp` baseline's fit (None for `linear`)."""
-    iteration: int = 0
-    env_steps: int = 0
-    wall_time: float = 0.0
-    nonfinite_batches: int = 0
-    """Batches whose update was refused: non-finite data, or an update that made parameters
-    non-finite (then undone)."""
-
-
-def _seeded(seed: int) -> torch.Generator:
-    generator = torch.Generator()
-    generator.manual_seed(seed)
-    return generator
-
-
-def make_sampler(config: Config) -> Sampler:
-    """The run's Sampler in its initial state (also used to replace one whose worker died)."""
-    return Sampler(config.env_id, config.num_workers, config.envs_per_worker, config.seed,
-                   config.max_episode_steps, stagger=config.stagger_first_episodes)
-
-
-def build_run(config: Config, estimator: GradientEstimator | None = None) -> Run:
-    """Compose the parts of a run from its config (the one place where they are chosen).
-
-    `estimator`: a user's gradient estimator (estimators.GradientEstimator) in place of the one
-    config.estimator names.
-    """
-    torch.set_num_threads(config.torch_threads)
-    keep_freed_memory()  # the update reuses large buffers: no page faults per allocation
-    sampler = RestartingSampler(lambda: make_sampler(config))
-    info = sampler.info
-    torch.manual_seed(config.seed)
-    policy = GaussianMlpPolicy(info.obs_dim, info.act_dim, config.hidden_sizes, config.init_log_std)
-    baseline: Baseline
-    baseline_generator = None
-    if config.baseline == "linear":
-        baseline = LinearFeatureBaseline(info.obs_dim)
-    else:
-        baseline_generator = _seeded(config.seed + 2)
-        baseline = MlpValueFunction(
-            info.obs_dim,
-            config.baseline_hidden_sizes,
-            config.baseline_lr,
-            config.baseline_epochs,
-            config.baseline_minibatch_size,
-            baseline_generator,
-        )
-    normalizer = RunningMeanStd(info.obs_dim) if config.normalize_observations else None
-    return Run(
-        config=config,
-        policy=policy,
-        baseline=baseline,
-        normalizer=normalizer,
-        sampler=sampler,
-        parts=update_parts(config, estimator),
-        generator=_seeded(config.seed + 1),
-        probe_generator=_seeded(config.seed + 3),
-        baseline_generator=baseline_generator,
-    )
+__all__ = ["IterationResult", "PreparedBatch", "Run", "UpdateOutcome", "build_run", "make_sampler",
+           "run_iteration", "surrogate_batch", "update_and_refit"]
 
 
 def _policy_inputs(run: Run, observations: torch.Tensor) -> torch.Tensor:
@@ -165,8 +84,7 @@ def _nonfinite(named: dict[str, torch.Tensor]) -> list[str]:
 
 def _nonfinite_learned_state(run: Run) -> list[str]:
     """Which of policy, baseline and normaliser hold a non-finite number (optimizer state included)."""
-    return [name for name, state in checkpoint.learned_state_views(run).items()
-            if checkpoint.nonfinite_tensors(state)]
+    return [name for name, state in run.learned_state_views().items() if nonfinite_tensors(state)]
 
 
 @dataclass(frozen=True)
@@ -266,7 +184,7 @@ def update_and_refit(run: Run, batch: Batch, prepared: PreparedBatch, label: str
         run.nonfinite_batches += 1
         return UpdateOutcome(None, math.nan, f"warning: {label}: non-finite {', '.join(bad_data)} "
                                              "in the batch; update skipped, parameters kept")
-    before = checkpoint.learned_state(run)
+    before = run.learned_state()
     stats = update_policy(run.policy, data, run.parts, run.generator, run.probe_generator)
     explained = explained_variance(values, targets)  # of the values the advantages used
     if run.normalizer is not None:
@@ -279,7 +197,7 @@ def update_and_refit(run: Run, batch: Batch, prepared: PreparedBatch, label: str
     broken = _nonfinite_learned_state(run)
     if not broken:
         return UpdateOutcome(stats, explained, None)
-    checkpoint.load_learned_state(run, before)
+    run.load_learned_state(before)
     run.nonfinite_batches += 1
     return UpdateOutcome(stats, explained, f"warning: {label}: the update made the {', '.join(broken)} "
                                            "non-finite; restored the parameters from before it")

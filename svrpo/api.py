@@ -16,10 +16,15 @@ if TYPE_CHECKING:
 
 def train(config: Config, run_dir: str | os.PathLike[str], resume: bool = False,
           show_progress: bool = True, env: Callable[[], Any] | None = None,
-          estimator: GradientEstimator | None = None) -> Path:
+          estimator: GradientEstimator | None = None, overwrite: bool = False,
+          callback: Callable[[dict[str, Any]], Any] | None = None) -> Path:
     """Train `config` into `run_dir` (the same files as `svrpo train`); returns the run directory.
 
-    resume=True continues the run in run_dir from its newest readable checkpoint.
+    run_dir must be new or empty: one that already holds a run is refused (RunDirectoryError,
+    nothing touched) unless resume=True, which continues it from its newest readable checkpoint,
+    or overwrite=True, which replaces it (the files a run writes; yours beside them stay).
+    callback(row): called after every iteration with its progress.csv row as a dict; return a
+    falsy value to stop the run there (it is checkpointed, and resume=True continues it).
     env: a function that builds your own Gymnasium env, defined at the top level of an
     importable module (each sampling worker imports it); the run's env_id becomes
     "module:function", so config.json still names the task.
@@ -27,8 +32,8 @@ def train(config: Config, run_dir: str | os.PathLike[str], resume: bool = False,
     docs/estimators.md) in place of config.estimator's; pass it again to resume.
     """
     from svrpo.parts import check_estimator
-    from svrpo.run_record import write_meta
     from svrpo.sampling.envs import env_id_of
+    from svrpo.training import RunRecord
     from svrpo.training import train as train_run
 
     if estimator is not None:
@@ -36,12 +41,10 @@ def train(config: Config, run_dir: str | os.PathLike[str], resume: bool = False,
     if env is not None:
         config = config.replace(env_id=env_id_of(env))
     path = Path(run_dir)
-    if not resume:
-        path.mkdir(parents=True, exist_ok=True)
-        extra = {} if estimator is None else {
-            "estimator_object": f"{type(estimator).__module__}.{type(estimator).__qualname__}"}
-        # The preset name is the label `svrpo plot` draws: the estimator's class for a user's one.
-        label = "custom" if estimator is None else type(estimator).__name__
-        write_meta(path, label, None, keep_existing=True, **extra)
-    train_run(config, path, resume=resume, show_progress=show_progress, estimator=estimator)
+    extra = {} if estimator is None else {
+        "estimator_object": f"{type(estimator).__module__}.{type(estimator).__qualname__}"}
+    # The preset name is the label `svrpo plot` draws: the estimator's class for a user's one.
+    label = "custom" if estimator is None else type(estimator).__name__
+    train_run(config, path, resume=resume, show_progress=show_progress, estimator=estimator,
+              overwrite=overwrite, callback=callback, record=RunRecord(label, None, extra))
     return path

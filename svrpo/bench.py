@@ -33,10 +33,12 @@ import numpy as np
 import torch
 
 from svrpo.arguments import OneLineParser
+from svrpo.errors import EnvError
 from svrpo.estimators import BatchGradients, VarianceDiagnostic
+from svrpo.lifecycle import Part
 from svrpo.parts import UpdateParts
 from svrpo.policy import GaussianMlpPolicy
-from svrpo.sampling.envs import EnvError, env_info, is_mujoco_task, make_env, scale_action
+from svrpo.sampling.envs import env_info, is_mujoco_task, make_env, scale_action
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.sampler import Batch, Sampler, steps_per_env
 
@@ -273,7 +275,7 @@ def timed_parts(parts: UpdateParts, timers: _Timers) -> UpdateParts:
             product = parts.fisher_product(*args)
         return timers.wrap("fisher_products", product)
 
-    class TimedMetric:
+    class TimedMetric(Part):
         def direction(self, gradient: torch.Tensor, product: Callable[[torch.Tensor], torch.Tensor]) -> Any:
             before = timers.seconds.get("fisher_products", 0.0)
             with timers.time("cg"):

@@ -15,15 +15,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from svrpo.arguments import CommandLineError, OneLineParser
-from svrpo.checkpoint import CheckpointError
-from svrpo.checkpoint import one_line as checkpoint_one_line
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, field_names, make_preset
-from svrpo.evaluation import EvaluationError
-from svrpo.experiments.specs import SpecError
-from svrpo.run_files import clear_run, holds_anything, is_run_directory
+from svrpo.errors import CheckpointError, EnvError, EvaluationError, SpecError
+from svrpo.errors import one_line as checkpoint_one_line
+from svrpo.run_files import RunDirectoryError, check_run_directory_path, claim_run_directory
 from svrpo.run_lock import LockedError, exclusive_writer
-from svrpo.run_record import write_config, write_meta
-from svrpo.sampling.envs import EnvError, check_import_allowed, env_info
 
 if TYPE_CHECKING:
     from svrpo.experiments.backends import Backend
@@ -52,7 +48,7 @@ def _parse_overrides(extra: list[str]) -> dict[str, str]:
     return overrides
 
 
-_TRAIN_DEFAULTS = {"preset": "svrpo", "env": "Hopper-v5", "scale": "laptop", "seed": 0}
+_TRAIN_DEFAULTS = {"preset": "svrpo", "env": "Hopper-v5", "scale": "modern", "seed": 0}
 """`svrpo train`'s defaults, applied after the check that --resume is not given them too."""
 # A flag of `svrpo train` and the config field it sets: giving both is ambiguous.
 _FLAG_FIELDS = {"env": "env_id", "steps": "total_steps", "seed": "seed"}
@@ -80,34 +76,6 @@ def _default_out(config: Config, preset: str) -> Path:
     return Path("runs") / config.env_id / preset / f"seed{config.seed}"
 
 
-def _check_new_out(run_dir: Path) -> None:
-    """--out must be a directory or a path that can become one (not a file, not a symlink)."""
-    if run_dir.is_symlink() or (run_dir.exists() and not run_dir.is_dir()):
-        kind = "a symbolic link" if run_dir.is_symlink() else "not a directory"
-        raise UsageError(f"--out {run_dir} is {kind}; give a new or empty directory (nothing was written)")
-    if holds_anything(run_dir) and not is_run_directory(run_dir):
-        raise UsageError(f"--out {run_dir} holds files but no svrpo run (no config.json); choose a new or "
-                         "empty directory (--overwrite only replaces runs); nothing was touched")
-
-
-def _make_room(run_dir: Path, overwrite: bool) -> None:
-    """Check that a new run may be written to run_dir; with overwrite, clear the run there.
-
-    Only a directory that is a run (config.json) is cleared, and only of the files a run writes
-    (svrpo.run_files): a user's own directory or files are never deleted.
-    """
-    if not holds_anything(run_dir):
-        return
-    _check_new_out(run_dir)  # again, now that this process holds the lock
-    if not overwrite:
-        raise UsageError(f"{run_dir} already holds a run: use --resume {run_dir} to continue it "
-                         "or --overwrite to replace it")
-    kept = clear_run(run_dir)
-    if kept:
-        print(f"note: --overwrite kept {len(kept)} entries of {run_dir} that a run does not write "
-              f"({', '.join(kept[:3])}{', ...' if len(kept) > 3 else ''})", file=sys.stderr)
-
-
 def _train(args: argparse.Namespace, extra: list[str]) -> int:
     if args.resume is not None:
         run_dir = Path(args.resume)
@@ -120,6 +88,8 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
             raise
         except (OSError, ValueError, TypeError) as error:  # e.g. a config.json cut short by a crash
             raise UsageError(f"--resume: cannot read {config_path}: {error}") from None
+        from svrpo.sampling.envs import check_import_allowed
+
         check_import_allowed(config.env_id, args.allow_import, config_path)
         given = [f"--{name}" for name in ("preset", "env", "scale", "seed", "out")
                  if getattr(args, name) is not None] + (["--overwrite"] if args.overwrite else [])
@@ -142,12 +112,14 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
         config = _build_config(args, extra)
         preset = args.preset
         run_dir = Path(args.out) if args.out else _default_out(config, preset)
+    from svrpo.sampling.envs import env_info
+
     env_info(config.env_id, config.max_episode_steps)  # fail before anything is written
     if config.total_steps % config.batch_size:
         print(f"note: total_steps is not a multiple of batch_size; running {config.iterations} "
               f"iterations = {config.iterations * config.batch_size} steps", file=sys.stderr)
     if args.resume is None:
-        _check_new_out(run_dir)
+        check_run_directory_path(run_dir)  # a file or a foreign directory: before the lock is made
     with contextlib.ExitStack() as held:
         try:  # before anything is read for resume or written: one writer per run
             held.enter_context(exclusive_writer(run_dir))
@@ -158,21 +130,19 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
 
 def _train_locked(args: argparse.Namespace, config: Config, preset: str, run_dir: Path) -> int:
     """_train once this process holds the run directory's writer lock."""
-    if args.resume is None:
-        _make_room(run_dir, args.overwrite)
-        # config.json first (atomically): a run killed at any later moment can be resumed.
-        write_config(run_dir, config)
-        write_meta(run_dir, preset, args.scale)
-
+    # The library's rule (training.train applies it too): refused here before anything is printed.
+    for note in claim_run_directory(run_dir, args.resume is not None, args.overwrite):
+        print(note, file=sys.stderr)
     from svrpo.experiments.runner import raise_keyboard_interrupt
-    from svrpo.training import TrainingError, train
+    from svrpo.training import RunRecord, TrainingError, train
 
     print(f"training {preset} on {config.env_id}: {config.iterations} iterations x "
           f"N={config.batch_size} steps -> {run_dir}", file=sys.stderr)
     # SIGTERM (a scheduler or `kill`) takes the Ctrl-C path: checkpoint the last iteration, exit.
     signal.signal(signal.SIGTERM, raise_keyboard_interrupt)
     try:
-        run = train(config, run_dir, resume=args.resume is not None, show_progress=not args.no_progress)
+        run = train(config, run_dir, resume=args.resume is not None, show_progress=not args.no_progress,
+                    overwrite=args.overwrite, record=RunRecord(preset, args.scale))
     except KeyboardInterrupt:
         print(f"interrupted; resume with: svrpo train --resume {run_dir}", file=sys.stderr)
         return 130
@@ -387,7 +357,8 @@ def make_parser() -> argparse.ArgumentParser:
     )
     train.add_argument("--preset", default=None, choices=PRESET_NAMES, help="default svrpo")
     train.add_argument("--env", default=None, help="Gymnasium task id (Box spaces); default Hopper-v5")
-    train.add_argument("--scale", default=None, choices=SCALES, help="default laptop")
+    train.add_argument("--scale", default=None, choices=SCALES,
+                       help="default modern (sb3-contrib's TRPO settings); laptop and paper: the paper's")
     train.add_argument("--steps", type=int, default=None,
                        help="total environment steps (with --resume: extend the run to this many)")
     train.add_argument("--seed", type=int, default=None, help="default 0")
@@ -472,7 +443,7 @@ def make_parser() -> argparse.ArgumentParser:
                                  "with its type, a preset's value and its docstring.")
     fields.add_argument("--preset", default="svrpo", choices=PRESET_NAMES)
     fields.add_argument("--env", default="Hopper-v5")
-    fields.add_argument("--scale", default="laptop", choices=SCALES)
+    fields.add_argument("--scale", default="modern", choices=SCALES)
     fields.set_defaults(handler=_fields)
     return parser
 
@@ -490,7 +461,7 @@ def main(argv: list[str] | None = None) -> int:
         print(error, file=sys.stderr)
         return 2
     except (UsageError, ConfigError, EnvError, CheckpointError, SpecError, EvaluationError,
-            LockedError) as error:
+            LockedError, RunDirectoryError) as error:
         print(f"svrpo {args.command}: error: {error}", file=sys.stderr)
         return 2
 

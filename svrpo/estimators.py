@@ -12,22 +12,26 @@ per inner step. All of them read the iteration's batch only, through `BatchGradi
 * `StormGradient`      d_0 = g~, d_j = mean_I grad U_t(w_j) + (1 - a)(d_{j-1} - mean_I grad U_t(w_{j-1}))
                        (STORM, Cutkosky & Orabona 2019; STORM-PG).
 
-A user's estimator is any object with the `GradientEstimator` methods (see docs/estimators.md).
+`ESTIMATORS` maps each config value of `estimator` to the factory that builds its part; a new
+estimator is a class and one line there (plus its config value). A user's estimator is any
+object with the `GradientEstimator` methods (see docs/estimators.md).
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import torch
 
-from svrpo.config import Surrogate
+from svrpo.config import Config, Surrogate
+from svrpo.lifecycle import Part
 from svrpo.objectives import SurrogateBatch, surrogate
 from svrpo.parameters import flat_gradient, flat_parameters, set_flat_parameters
 from svrpo.policy import GaussianMlpPolicy
+from svrpo.streams import RandomStreams
 
 # indices -> mean over those rows of grad U_t at a fixed parameter vector; None = all N rows.
 SubsetGradient = Callable[[torch.Tensor | None], torch.Tensor]
@@ -54,6 +58,9 @@ class BatchGradients:
 
     def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> None:
         self.policy = policy
+        """The live policy (its parameters are the inner iterate w_j)."""
+        self.batch = batch
+        """The iteration's batch."""
         self._snapshot_policy = copy.deepcopy(policy)  # w~: frozen for the whole iteration
         self._scratch_policy: GaussianMlpPolicy | None = None  # built on the first `at`
         self._batch, self._kind = batch, kind
@@ -81,10 +88,15 @@ class GradientEstimator(Protocol):
     `estimate(indices)` once per inner step j = 0..J-1 with that step's mini-batch row indices,
     after the policy has moved to w_j. `peek(indices)` is the estimate the same call would
     return, without advancing any state: the variance probe uses it. `uses_minibatches` False
-    means the estimator ignores `indices` (the update then draws all N rows).
+    means the estimator ignores `indices` (the update then draws all N rows). `path_dependent`
+    True means the estimate at step j depends on the earlier inner steps (a recursion), so the
+    probe measures a conditional mean squared error, not a variance (reports draw it apart).
+    `state_dict` / `load_state_dict` carry what must survive a checkpoint between iterations
+    (svrpo.lifecycle.Part gives the empty defaults: subclass it).
     """
 
     uses_minibatches: bool
+    path_dependent: bool
 
     def start(self, gradients: BatchGradients) -> None: ...
 
@@ -92,11 +104,16 @@ class GradientEstimator(Protocol):
 
     def peek(self, indices: torch.Tensor) -> torch.Tensor: ...
 
+    def state_dict(self) -> dict[str, Any]: ...
 
-class _Stateless:
+    def load_state_dict(self, state: Mapping[str, Any]) -> None: ...
+
+
+class _Stateless(Part):
     """Base of the estimators whose estimate depends on the mini-batch only: peek = estimate."""
 
     uses_minibatches = True
+    path_dependent = False
     gradients: BatchGradients
 
     def start(self, gradients: BatchGradients) -> None:
@@ -174,14 +191,16 @@ def storm_gradient(
     return minibatch_gradient + (1.0 - momentum) * (previous_estimate - minibatch_previous_gradient)
 
 
-class _Recursive:
+class _Recursive(Part):
     """Base of the estimators that carry (w_{j-1}, estimate_{j-1}) from step to step.
 
     Step 0 returns g~ (the full gradient at w~ = w_0). A non-finite estimate is returned (the
     update skips that step) but not recorded, so one bad mini-batch does not poison the rest.
+    The recursion restarts at every outer iteration, so nothing is saved between them.
     """
 
     uses_minibatches = True
+    path_dependent = True
 
     def __init__(self) -> None:
         self._previous: tuple[torch.Tensor, torch.Tensor] | None = None
@@ -227,6 +246,16 @@ class StormGradient(_Recursive):
     def _combine(self, previous_estimate: torch.Tensor, minibatch: torch.Tensor,
                  minibatch_previous: torch.Tensor) -> torch.Tensor:
         return storm_gradient(previous_estimate, minibatch, minibatch_previous, self.momentum)
+
+
+ESTIMATORS: dict[str, Callable[[Config, RandomStreams], GradientEstimator]] = {
+    "full": lambda config, streams: FullGradient(),
+    "sgd": lambda config, streams: MinibatchGradient(),
+    "svrg": lambda config, streams: SvrgGradient(),
+    "sarah": lambda config, streams: SarahGradient(),
+    "storm": lambda config, streams: StormGradient(config.storm_momentum),
+}
+"""config.estimator value -> (config, the run's random streams) -> the estimator part."""
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ import numpy as np
 
 from svrpo import checkpoint
 from svrpo.config import Config
+from svrpo.errors import EvaluationError
 from svrpo.sampling.envs import check_import_allowed, env_info, horizon, make_env, registered_id, scale_action
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 
@@ -31,10 +32,6 @@ GL_BACKENDS = ("egl", "osmesa")
 """Tried in this order unless MUJOCO_GL is set: EGL (GPU, or Mesa's software renderer without
 one), then OSMesa (software; Debian package libosmesa6)."""
 _NO_RENDERER = 3  # the render child's exit code when its GL backend cannot make a context
-
-
-class EvaluationError(ValueError):
-    """A path that holds no checkpoint, or a video that cannot be rendered."""
 
 
 @dataclass(frozen=True)

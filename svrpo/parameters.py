@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from torch import nn
 
@@ -33,3 +35,16 @@ def flat_gradient(
     return torch.cat(
         [(torch.zeros_like(p) if g is None else g).reshape(-1) for g, p in zip(grads, params, strict=True)]
     )
+
+
+def nonfinite_tensors(value: Any, name: str = "") -> list[str]:
+    """Dotted names of the floating-point tensors (nested in dicts/lists) holding NaN or inf."""
+    if isinstance(value, torch.Tensor):
+        finite = not value.is_floating_point() or bool(torch.isfinite(value).all())
+        return [] if finite else [name]
+    if isinstance(value, dict):
+        return [found for key, item in value.items()
+                for found in nonfinite_tensors(item, f"{name}.{key}".lstrip("."))]
+    if isinstance(value, (list, tuple)):
+        return [n for index, item in enumerate(value) for n in nonfinite_tensors(item, f"{name}.{index}")]
+    return []

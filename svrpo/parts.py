@@ -1,51 +1,55 @@
-"""The parts of the policy update, chosen from a Config in one place (`update_parts`).
+"""The parts of the policy update, built from a Config in one place (`update_parts`).
 
 The update (svrpo/update.py) receives an `UpdateParts`: objects with small typed interfaces and
-the trust-region numbers, never the Config, so no part is picked by a string on the update path.
-Replacing a part is `dataclasses.replace(parts, estimator=MyEstimator())`: that is how a user's
-estimator enters a run (svrpo.train(..., estimator=...)) and how benchmarks time a part (wrap
-it) and tests fault one (pass a broken one).
+the inner loop's numbers, never the Config, so no part is picked by a string on the update path.
+Each part kind is one registry, name -> factory(config, streams), kept beside its classes:
 
-| Config field | values -> part |
+| Config field | registry |
 |---|---|
-| estimator  | full -> FullGradient, sgd -> MinibatchGradient, svrg -> SvrgGradient, |
-|            | sarah -> SarahGradient, storm -> StormGradient(storm_momentum) |
-| metric     | fisher -> FisherMetric(cg_iters, cg_residual_tol), identity -> IdentityMetric |
-| kl_anchor  | sampling -> SamplingAnchor, iterate -> IterateAnchor |
-| inner_stop | all -> RunAllSteps, failed_search -> StopAfterFailedSearch |
+| estimator  | estimators.ESTIMATORS |
+| metric     | trust_region.metrics.METRICS |
+| kl_anchor  | trust_region.anchors.KL_ANCHORS |
+| inner_stop | stopping.STOPPING_RULES |
+
+`PART_REGISTRIES` lists them; tests derive their coverage from it. Every part has the lifecycle
+of svrpo.lifecycle.Part (start at each outer iteration, state_dict / load_state_dict), which
+`UpdateParts.start` / `state_dict` / `load_state_dict` call on all four alike. Replacing a part
+is `dataclasses.replace(parts, estimator=MyEstimator())`: that is how a user's estimator enters a
+run (svrpo.train(..., estimator=...)) and how benchmarks time a part (wrap it) and tests fault
+one (pass a broken one).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
 from svrpo.config import Config, Surrogate
 from svrpo.estimators import (
+    ESTIMATORS,
     BatchGradients,
-    FullGradient,
     GradientEstimator,
-    MinibatchGradient,
-    SarahGradient,
-    StormGradient,
-    SvrgGradient,
     VarianceDiagnostic,
     estimator_variances,
 )
 from svrpo.objectives import SurrogateBatch
 from svrpo.policy import GaussianMlpPolicy
-from svrpo.stopping import RunAllSteps, StopAfterFailedSearch, StoppingRule
-from svrpo.trust_region.anchors import IterateAnchor, KlAnchor, SamplingAnchor
+from svrpo.stopping import STOPPING_RULES, StoppingRule
+from svrpo.streams import RandomStreams
+from svrpo.trust_region.anchors import KL_ANCHORS, KlAnchor
 from svrpo.trust_region.line_search import LineSearchResult, backtracking_line_search
-from svrpo.trust_region.metrics import (
-    DirectionMetric,
-    FisherMetric,
-    IdentityMetric,
-    MatVec,
-    fisher_vector_product,
-)
+from svrpo.trust_region.metrics import METRICS, DirectionMetric, MatVec, fisher_vector_product
+
+PART_REGISTRIES: dict[str, Mapping[str, Callable[[Config, RandomStreams], Any]]] = {
+    "estimator": ESTIMATORS,
+    "metric": METRICS,
+    "kl_anchor": KL_ANCHORS,
+    "inner_stop": STOPPING_RULES,
+}
+"""Config field -> the registry of the part kind it names."""
 
 
 @dataclass(frozen=True)
@@ -59,8 +63,6 @@ class InnerLoop:
     fisher_subsample: float
     """nu: the fraction of rows in each step's Fisher product."""
     cg_damping: float
-    max_kl: float
-    """delta."""
     backtrack_ratio: float
     max_backtracks: int
     surrogate: Surrogate
@@ -89,46 +91,72 @@ class UpdateParts:
         estimator_variances)
 
 
-def estimator_for(config: Config) -> GradientEstimator:
+    def lifecycle(self) -> dict[str, Any]:
+        """The four parts by config field (the keys of their state in a checkpoint)."""
+        return {"estimator": self.estimator, "metric": self.metric, "kl_anchor": self.kl_anchor,
+                "inner_stop": self.stopping_rule}
+
+    def start(self, gradients: BatchGradients) -> None:
+        """Every part's per-iteration start, at w~ (estimator first: it owns g~)."""
+        for part in self.lifecycle().values():
+            part.start(gradients)
+
+    def state_dict(self) -> dict[str, dict[str, Any]]:
+        return {kind: part.state_dict() for kind, part in self.lifecycle().items()}
+
+    def load_state_dict(self, state: Mapping[str, Mapping[str, Any]]) -> None:
+        """Restore state_dict output (a kind missing from `state` restores as empty)."""
+        for kind, part in self.lifecycle().items():
+            part.load_state_dict(state.get(kind, {}))
+
+
+def build_part(field: str, config: Config, streams: RandomStreams) -> Any:
+    """The part that config.<field> names, from its registry (ValueError naming the choices)."""
+    registry, name = PART_REGISTRIES[field], getattr(config, field)
+    if name not in registry:
+        raise ValueError(f"no {field} part named {name!r}; registered: {', '.join(registry)}")
+    return registry[name](config, streams)
+
+
+def estimator_for(config: Config, streams: RandomStreams | None = None) -> GradientEstimator:
     """The estimator part that config.estimator names."""
-    if config.estimator == "full":
-        return FullGradient()
-    if config.estimator == "sgd":
-        return MinibatchGradient()
-    if config.estimator == "svrg":
-        return SvrgGradient()
-    if config.estimator == "sarah":
-        return SarahGradient()
-    if config.estimator == "storm":
-        return StormGradient(config.storm_momentum)
-    raise ValueError(f"unknown estimator {config.estimator!r}")
+    estimator: GradientEstimator = build_part("estimator", config, streams or RandomStreams(config.seed))
+    return estimator
 
 
 def check_estimator(estimator: object) -> None:
     """TypeError naming what is missing if `estimator` lacks a GradientEstimator member."""
     if isinstance(estimator, GradientEstimator):
         return
-    members = ("uses_minibatches", "start", "estimate", "peek")
+    members = ("uses_minibatches", "path_dependent", "start", "estimate", "peek", "state_dict",
+               "load_state_dict")
     missing = [name for name in members if not hasattr(estimator, name)]
     raise TypeError(f"estimator {type(estimator).__name__} lacks {', '.join(missing)}: a gradient "
-                    "estimator needs uses_minibatches, start(gradients), estimate(indices) and "
-                    "peek(indices) (see docs/estimators.md)")
+                    "estimator needs uses_minibatches, path_dependent, start(gradients), "
+                    "estimate(indices), peek(indices) and state_dict / load_state_dict (subclass "
+                    "svrpo.lifecycle.Part for empty ones; see docs/estimators.md)")
 
 
-def update_parts(config: Config, estimator: GradientEstimator | None = None) -> UpdateParts:
-    """The update's parts for `config` (a user's `estimator` in place of config.estimator's)."""
+def update_parts(config: Config, estimator: GradientEstimator | None = None,
+                 streams: RandomStreams | None = None) -> UpdateParts:
+    """The update's parts for `config` (a user's `estimator` in place of config.estimator's).
+
+    `streams`: the run's random-stream allocator (parts that draw random numbers take a named
+    stream from it); a fresh one for `config.seed` if not given.
+    """
     if estimator is not None:
         check_estimator(estimator)
-    metric: DirectionMetric = (FisherMetric(config.cg_iters, config.cg_residual_tol)
-                               if config.metric == "fisher" else IdentityMetric())
-    anchor: KlAnchor = SamplingAnchor() if config.kl_anchor == "sampling" else IterateAnchor()
-    stopping: StoppingRule = (StopAfterFailedSearch() if config.inner_stop == "failed_search"
-                              else RunAllSteps())
+    streams = streams or RandomStreams(config.seed)
     loop = InnerLoop(
         inner_steps=config.inner_steps, minibatch_size=config.minibatch_size,
-        fisher_subsample=config.fisher_subsample, cg_damping=config.cg_damping, max_kl=config.max_kl,
+        fisher_subsample=config.fisher_subsample, cg_damping=config.cg_damping,
         backtrack_ratio=config.backtrack_ratio, max_backtracks=config.max_backtracks,
         surrogate=config.surrogate, variance_probe_batches=config.variance_probe_batches,
     )
-    return UpdateParts(loop=loop, estimator=estimator or estimator_for(config), metric=metric,
-                       kl_anchor=anchor, stopping_rule=stopping)
+    return UpdateParts(
+        loop=loop,
+        estimator=estimator or build_part("estimator", config, streams),
+        metric=build_part("metric", config, streams),
+        kl_anchor=build_part("kl_anchor", config, streams),
+        stopping_rule=build_part("inner_stop", config, streams),
+    )

@@ -1,9 +1,12 @@
-"""What a run directory holds, and the one way this project deletes from one.
+"""What a run directory holds, the rules for starting a run in one, and the one way this
+project deletes from one.
 
-`--overwrite` (and a sweep replacing a run by a copy) may only replace a directory that is
-recognisably a svrpo run, and only the files a run writes: a user's own files beside them stay,
-and a directory that is not a run is refused before anything is touched. No torch here: the
-sweep tooling uses it too.
+`claim_run_directory` is the rule both front ends follow (`svrpo train` and `svrpo.train`): a
+directory that already holds a run is refused unless the caller resumes it or asks to replace
+it. Replacing (`--overwrite`, `overwrite=True`, or a sweep replacing a run by a copy) only
+touches a directory that is recognisably a svrpo run, and only the files a run writes: a user's
+own files beside them stay, and a directory that is not a run is refused before anything is
+touched. No torch here: the CLI and the sweep tooling use it too.
 """
 
 from __future__ import annotations
@@ -20,7 +23,11 @@ RUN_DIRECTORIES = ("checkpoints", "tensorboard")
 """Directories a run writes (everything in them is the run's)."""
 
 
-class NotARunError(ValueError):
+class RunDirectoryError(ValueError):
+    """A directory a run may not be started in (as given: nothing in it was touched)."""
+
+
+class NotARunError(RunDirectoryError):
     """A directory that --overwrite (or a sweep) may not clear: not a run, or not a directory."""
 
 
@@ -66,3 +73,45 @@ def clear_run(path: Path) -> list[str]:
         elif entry.is_dir():
             shutil.rmtree(entry)
     return foreign_entries(path)
+
+
+def check_run_directory_path(path: Path) -> None:
+    """RunDirectoryError unless `path` can hold a new run: a new or empty directory, or a run's.
+
+    A file, a symbolic link, or a directory holding files but no run (no config.json) is refused.
+    """
+    if path.is_symlink() or (path.exists() and not path.is_dir()):
+        kind = "a symbolic link" if path.is_symlink() else "not a directory"
+        raise RunDirectoryError(f"{path} is {kind}; give a new or empty directory (nothing was written)")
+    if holds_anything(path) and not is_run_directory(path):
+        raise RunDirectoryError(f"{path} holds files but no svrpo run (no config.json); choose a new or "
+                                "empty directory (overwriting only replaces runs); nothing was touched")
+
+
+def claim_run_directory(path: Path, resume: bool, overwrite: bool) -> list[str]:
+    """Make `path` ready for a run; the notes to show. Call it holding the writer lock.
+
+    resume: `path` must hold a run (its config.json), which is continued. Otherwise a new or empty
+    directory is used as it is; one that holds a run is refused (RunDirectoryError, nothing
+    touched) unless `overwrite`, which clears the files a run writes and keeps the user's own.
+    """
+    if resume and overwrite:
+        raise RunDirectoryError("resume and overwrite exclude each other: resuming keeps the run, "
+                                "overwriting replaces it")
+    if resume:
+        if not is_run_directory(path):
+            raise RunDirectoryError(f"cannot resume {path}: it holds no config.json (not a run directory)")
+        return []
+    if not holds_anything(path):
+        return []
+    check_run_directory_path(path)
+    if not overwrite:
+        raise RunDirectoryError(
+            f"{path} already holds a run: continue it (svrpo train --resume {path}, or "
+            "svrpo.train(..., resume=True)) or replace it (--overwrite, or overwrite=True); "
+            "nothing was touched")
+    kept = clear_run(path)
+    if not kept:
+        return []
+    return [f"note: overwriting kept {len(kept)} entries of {path} that a run does not write "
+            f"({', '.join(kept[:3])}{', ...' if len(kept) > 3 else ''})"]

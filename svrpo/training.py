@@ -8,17 +8,34 @@ and a resume ends with the same progress.csv, row for row, as an uninterrupted r
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from svrpo import checkpoint
-from svrpo.algorithm import Run, build_run, run_iteration
+from svrpo.algorithm import run_iteration
 from svrpo.atomic import write_text_atomic
 from svrpo.config import Config
 from svrpo.errors import TrainingError
 from svrpo.estimators import GradientEstimator
 from svrpo.logging import RunLogger, truncate_progress
+from svrpo.run import Run, build_run
+from svrpo.run_files import claim_run_directory
 from svrpo.run_lock import exclusive_writer, record_holder
-from svrpo.run_record import write_config
+from svrpo.run_record import write_config, write_meta
+
+Callback = Callable[[dict[str, Any]], Any]
+"""Called after every iteration with its progress.csv row; a falsy return stops the run."""
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """How a new run was started, for run.json (svrpo plot labels the run with `preset`)."""
+
+    preset: str
+    scale: str | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
 
 __all__ = ["TrainingError", "WriteFailedError", "train"]
 
@@ -36,7 +53,7 @@ def _resume(run: Run, run_dir: Path) -> list[str]:
         _restore_progress(progress, "")
         return ["no checkpoint to resume from: starting at iteration 0"]
     state, path, warnings = checkpoint.load_latest(directory)
-    checkpoint.restore_state(run, state, path)
+    run.load_state_dict(state, path)
     notes = [f"warning: {warning}" for warning in warnings]
     notes.append(f"resuming from {path} (iteration {run.iteration})")
     if "progress_csv" in state:
@@ -67,56 +84,69 @@ def _truncate_progress(progress: Path, iteration: int) -> list[str]:
 
 
 def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bool = True,
-          estimator: GradientEstimator | None = None) -> Run:
+          estimator: GradientEstimator | None = None, *, overwrite: bool = False,
+          callback: Callback | None = None, record: RunRecord | None = None) -> Run:
     """Train to config.total_steps, writing config.json, progress.csv, TensorBoard, checkpoints.
 
     resume=True continues from the newest readable checkpoint in run_dir (an older one if the
     newest is damaged); progress.csv loses the rows logged after it, which are redone, so the
-    file ends exactly as in an uninterrupted run. resume=False starts over: checkpoints and
-    rows an earlier run left in run_dir are removed (and its TensorBoard events hidden), so the
-    two runs never mix. Whatever stops the loop (Ctrl-C, dying workers, a bug), the last
-    completed iteration is checkpointed before the exception leaves.
+    file ends exactly as in an uninterrupted run. Otherwise run_dir must be new or empty, or
+    hold a run that overwrite=True replaces (svrpo.run_files.claim_run_directory: the same rule
+    as `svrpo train`; RunDirectoryError before anything is touched). Whatever stops the loop
+    (Ctrl-C, dying workers, a bug), the last completed iteration is checkpointed before the
+    exception leaves.
 
     `estimator`: a user's gradient estimator in place of config.estimator's (see build_run); a
     resume must pass the same one again (config.json cannot record an object).
+    `callback(row)`: called after every iteration with its progress row; a falsy return stops
+    the run after checkpointing that iteration (resume continues it, as after Ctrl-C).
+    `record`: written to run.json for a new run.
     """
     with exclusive_writer(run_dir):  # one writer per run (re-entrant: the CLI may hold it already)
-        return _train(config, run_dir, resume, show_progress, estimator)
+        notes = claim_run_directory(run_dir, resume, overwrite)
+        if not resume:
+            # Written first, so that a run killed while starting is still a resumable directory.
+            write_config(run_dir, config)
+            if record is not None:
+                write_meta(run_dir, record.preset, record.scale, **record.extra)
+        return _train(config, run_dir, resume, show_progress, estimator, callback, notes)
 
 
 def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
-           estimator: GradientEstimator | None) -> Run:
-    """train() once this process holds the run directory's writer lock."""
+           estimator: GradientEstimator | None, callback: Callback | None, notes: list[str]) -> Run:
+    """train() once this process holds the run directory's writer lock and has claimed it."""
     checkpoints = run_dir / "checkpoints"
-    if not resume:
-        for stale in checkpoint.list_checkpoints(checkpoints):
-            stale.unlink()
-        # Written first, so that a run killed while starting is still a resumable directory.
-        write_config(run_dir, config)
     progress = run_dir / "progress.csv"
     run = build_run(config, estimator)
     try:
         if not resume:
             _restore_progress(progress, "")  # a fresh start: no rows of an earlier run
-        notes = _resume(run, run_dir) if resume else []
+        notes = notes + (_resume(run, run_dir) if resume else [])
         write_config(run_dir, config)  # on resume only if it changed (e.g. more total_steps)
         logger = RunLogger(run_dir, config.iterations * config.batch_size, run.env_steps, show_progress)
         for note in notes:
             logger.message(note)
         record_holder(run_dir)  # from here on this process writes the run
-        last_state = checkpoint.capture_state(run, progress.read_text() if progress.exists() else "")
+        last_state = run.state_dict(progress.read_text() if progress.exists() else "")
         saved_iteration = run.iteration if resume else -1
         try:
             while run.iteration < config.iterations:
                 result = run_iteration(run)
                 for warning in result.warnings:  # before the row: a kill right after it loses none
                     logger.message(warning)
-                logger.log(result.progress_row())
-                last_state = checkpoint.capture_state(run, progress.read_text())
-                if run.iteration % config.checkpoint_every == 0 or run.iteration == config.iterations:
+                row = result.progress_row()
+                logger.log(row)
+                last_state = run.state_dict(progress.read_text())
+                stop = callback is not None and not callback(row)
+                if (run.iteration % config.checkpoint_every == 0 or run.iteration == config.iterations
+                        or stop):
                     checkpoint.save_atomic(last_state, checkpoint.checkpoint_path(checkpoints, run.iteration))
                     checkpoint.prune(checkpoints)
                     saved_iteration = run.iteration
+                if stop:
+                    logger.message(f"stopped by the callback after iteration {run.iteration}; the "
+                                   f"checkpoint is in {checkpoints} (resume to continue)")
+                    break
         except OSError as error:
             # A write failed (disk full, quota, file-size limit): retrying the checkpoint would fail
             # the same way, and everything written before the failed write is intact.

@@ -124,7 +124,7 @@ def update_policy(
     loop, estimator = parts.loop, parts.estimator
     count = len(batch)
     gradients = parts.gradients(policy, batch, loop.surrogate)  # g~ at w~, once
-    estimator.start(gradients)
+    parts.start(gradients)
     fisher_rows = max(1, int(round(loop.fisher_subsample * count)))
     minibatch_rows = loop.minibatch_size if estimator.uses_minibatches else count
 
@@ -149,7 +149,8 @@ def update_policy(
         if cg is not None:
             cg_residuals.append(cg.residual_norm_sq)
             cg_iterations.append(cg.iterations)
-        step_length = max_step_length(direction, fisher_product, loop.max_kl)
+        bound = parts.kl_anchor.bound(batch, policy)  # this step's trust region
+        step_length = max_step_length(direction, fisher_product, bound.radius)
         if step_length is None or not torch.isfinite(direction).all():
             skipped_curvature += 1
             continue
@@ -159,11 +160,11 @@ def update_policy(
             start=flat_parameters(policy),
             full_step=full_step,
             set_parameters=lambda flat: set_flat_parameters(policy, flat),
-            evaluate=full_batch.objective_and_kl(parts.kl_anchor.distribution(batch, policy)),
+            evaluate=full_batch.objective_and_kl(bound.anchor),
             # U(w_j) is U at the last accepted point (or at w~): a rejected search restores the
             # parameters exactly, so recomputing it would give the same number.
             start_objective=step_objective,
-            max_kl=loop.max_kl,
+            max_kl=bound.radius,
             ratio=loop.backtrack_ratio,
             max_backtracks=loop.max_backtracks,
         )

@@ -127,6 +127,6 @@ def test_an_estimator_without_the_protocol_is_refused_before_anything_runs(tmp_p
             return None
 
     config = svrpo.make_preset("svrpo", "InvertedPendulum-v5", "laptop")
-    with pytest.raises(TypeError, match="lacks start, peek"):
+    with pytest.raises(TypeError, match="lacks path_dependent, start, peek, state_dict, load_state_dict"):
         svrpo.train(config, tmp_path / "run", estimator=Incomplete())  # type: ignore[arg-type]
     assert not (tmp_path / "run").exists()

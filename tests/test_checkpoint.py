@@ -12,13 +12,13 @@ import torch
 
 from svrpo import checkpoint
 from svrpo.algorithm import build_run
-from svrpo.checkpoint import CheckpointError, capture_state, restore_state
+from svrpo.checkpoint import CheckpointError
 from svrpo.config import make_preset
 from svrpo.logging import RunLogger, read_progress, truncate_progress
 
 
 def _state(iteration: int) -> dict[str, object]:
-    """A small checkpoint-shaped dict with the value types capture_state produces."""
+    """A small checkpoint-shaped dict with the value types Run.state_dict produces."""
     return {
         "format": checkpoint.FORMAT,
         "config": "{}",
@@ -171,7 +171,7 @@ def test_restore_refuses_other_task_or_shape_and_names_the_field(tmp_path: Path)
     config = _small_run_config()
     source = build_run(config)
     try:
-        state = capture_state(source)
+        state = source.state_dict()
     finally:
         source.sampler.close()
     for changes, words in [({"hidden_sizes": (16,)}, "hidden_sizes=(8, 8)"),
@@ -181,7 +181,7 @@ def test_restore_refuses_other_task_or_shape_and_names_the_field(tmp_path: Path)
         other = build_run(config.replace(**changes))
         try:
             with pytest.raises(CheckpointError, match=words.replace("(", r"\(").replace(")", r"\)")) as error:
-                restore_state(other, state, tmp_path / "iter_000001.pt")
+                other.load_state_dict(state, tmp_path / "iter_000001.pt")
             assert "iter_000001.pt" in str(error.value)
         finally:
             other.sampler.close()
@@ -190,9 +190,9 @@ def test_restore_refuses_other_task_or_shape_and_names_the_field(tmp_path: Path)
     run = build_run(config)
     try:
         with pytest.raises(CheckpointError, match="does not fit this run.*log_std") as error:
-            restore_state(run, tampered, tmp_path / "iter_000001.pt")
+            run.load_state_dict(tampered, tmp_path / "iter_000001.pt")
         assert "\n" not in str(error.value)
         with pytest.raises(CheckpointError, match="holds no readable config"):
-            restore_state(run, {**state, "config": "{not json"}, tmp_path / "iter_000001.pt")
+            run.load_state_dict({**state, "config": "{not json"}, tmp_path / "iter_000001.pt")
     finally:
         run.sampler.close()

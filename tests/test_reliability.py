@@ -40,6 +40,7 @@ from svrpo.baselines import MlpValueFunction
 from svrpo.config import Config, ConfigError, coerce_field, field_names, make_preset
 from svrpo.estimators import BatchGradients, SvrgGradient
 from svrpo.parameters import flat_parameters
+from svrpo.run_files import RunDirectoryError
 from svrpo.run_lock import LockedError
 from svrpo.sampling import restarting
 from svrpo.sampling.sampler import Sampler
@@ -356,12 +357,16 @@ def test_output_path_that_is_a_file_or_a_symlink_is_refused(tmp_path: Path,
 
 
 def test_training_afresh_in_a_used_directory_leaves_nothing_of_the_old_run(tmp_path: Path) -> None:
-    """train(resume=False) starts over: a longer earlier run's checkpoints would otherwise outrank
-    the new ones (prune would delete them, resume would pick the old run)."""
+    """train(overwrite=True) starts over: a longer earlier run's checkpoints would otherwise outrank
+    the new ones (prune would delete them, resume would pick the old run). Without overwrite (or
+    resume) the used directory is refused and keeps every file."""
     config = make_preset("trpo", ENV, "laptop").replace(
         batch_size=200, total_steps=800, num_workers=0, envs_per_worker=1, eval_every=0, checkpoint_every=1)
     train(config, tmp_path, show_progress=False)
-    train(config.replace(total_steps=400, seed=1), tmp_path, show_progress=False)
+    with pytest.raises(RunDirectoryError, match="already holds a run"):
+        train(config.replace(total_steps=400, seed=1), tmp_path, show_progress=False)
+    assert len(checkpoint.list_checkpoints(tmp_path / "checkpoints")) == 3
+    train(config.replace(total_steps=400, seed=1), tmp_path, show_progress=False, overwrite=True)
     assert [p.name for p in checkpoint.list_checkpoints(tmp_path / "checkpoints")] == [
         "iter_000002.pt", "iter_000001.pt"]
     assert [r["iteration"] for r in progress_rows(tmp_path)] == ["1", "2"]

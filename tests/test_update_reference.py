@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import pytest
 import torch
 
-from svrpo.config import Config, Estimator, differing_fields, make_preset
+from svrpo.config import Config, differing_fields, make_preset
 from svrpo.objectives import SurrogateBatch
 from svrpo.parameters import flat_parameters, set_flat_parameters
 from svrpo.parts import update_parts
@@ -356,7 +356,7 @@ def make_config(**changes: object) -> Config:
         cg_iters=4 * PARAMETER_COUNT, cg_residual_tol=1e-30, cg_damping=0.05, max_kl=0.05,
         backtrack_ratio=0.5, max_backtracks=5,
     )
-    return make_preset("svrpo").replace(**{**tiny, **changes})
+    return make_preset("svrpo", "Hopper-v5", "laptop").replace(**{**tiny, **changes})
 
 
 @dataclass(frozen=True)
@@ -487,10 +487,13 @@ def test_update_matches_reference(scenario: Scenario) -> None:
 
 
 def test_scenarios_cover_every_option_and_event() -> None:
-    """Each value of each ablation field, and each event the mistakes hinge on, is in some case."""
-    options = {"estimator": set(typing.get_args(Estimator)), "metric": {"fisher", "identity"},
-               "surrogate": {"ratio", "loglik"}, "kl_anchor": {"sampling", "iterate"},
-               "inner_stop": {"all", "failed_search"}}
+    """Each registered part of each kind, each surrogate, and each event the mistakes hinge on, is
+    in some case: a part registered without a reference scenario fails here."""
+    from svrpo.config import Surrogate
+    from svrpo.parts import PART_REGISTRIES
+
+    options = {field: set(registry) for field, registry in PART_REGISTRIES.items()}
+    options["surrogate"] = set(typing.get_args(Surrogate))
     for name, values in options.items():
         assert {getattr(s.config, name) for s in SCENARIOS} == values, name
     assert set().union(*(s.expect for s in SCENARIOS)) == EVENTS
@@ -543,7 +546,7 @@ def test_first_svrg_step_with_the_full_fisher_is_trpos_step() -> None:
     policy_trpo, policy_svrpo = entry_policy(seed=11), entry_policy(seed=11)
     rows = sampled_rows(flat_parameters(policy_trpo), seed=12)
     tiny = make_config()
-    trpo = make_preset("trpo").replace(**{k: getattr(tiny, k) for k in (
+    trpo = make_preset("trpo", "Hopper-v5", "laptop").replace(**{k: getattr(tiny, k) for k in (
         "batch_size", "total_steps", "hidden_sizes", "num_workers", "envs_per_worker",
         "variance_probe_batches", "cg_iters", "cg_residual_tol", "cg_damping", "max_kl",
         "backtrack_ratio", "max_backtracks")})

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, Scale, coerce_field, make_preset
+from svrpo.errors import SpecError
 
 DEFAULT_SEEDS = 5
 """Seeds per (task, preset) of the named experiments (the paper ran one)."""
@@ -36,10 +37,6 @@ PAPER_TASKS = ("Swimmer-v5", "Walker2d-v5", "Hopper-v5", "HalfCheetah-v5", "Ant-
 
 # Fields a spec may not override: each run's task and seed come from the grid.
 _GRID_FIELDS = ("env_id", "seed")
-
-
-class SpecError(ValueError):
-    """An experiment spec that cannot be run (unknown name, unreadable or invalid YAML)."""
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,8 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from svrpo.errors import EnvError
+
 # The integration state is everything mj_step reads (qpos, qvel, act, warm-start, ctrl, applied
 # forces, ...): restoring it makes the next steps bit-identical, which qpos/qvel alone do not.
 _PHYSICS_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
@@ -22,10 +24,6 @@ _PHYSICS_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 
 DEFAULT_HORIZON = 1000
 """Time limit of a task that registers none (the paper's horizon): episodes are truncated there."""
-
-
-class EnvError(ValueError):
-    """An environment id that does not exist, or spaces this project cannot handle."""
 
 
 @dataclass(frozen=True)

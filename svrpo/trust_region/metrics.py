@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import torch
 from torch import nn
 
+from svrpo.config import Config
+from svrpo.lifecycle import Part
 from svrpo.objectives import mean_kl_from
 from svrpo.parameters import flat_gradient
 from svrpo.policy import GaussianMlpPolicy
+from svrpo.streams import RandomStreams
 from svrpo.trust_region.conjugate_gradient import CgResult, conjugate_gradient
+
+if TYPE_CHECKING:
+    from svrpo.estimators import BatchGradients
 
 MatVec = Callable[[torch.Tensor], torch.Tensor]
 Direction = tuple[torch.Tensor, CgResult | None]
@@ -117,15 +123,22 @@ def _linear_layers(policy: GaussianMlpPolicy) -> list[nn.Linear] | None:
 
 @runtime_checkable
 class DirectionMetric(Protocol):
-    """Turns a gradient estimate into a search direction s (its length is set by the KL model)."""
+    """Turns a gradient estimate into a search direction s (its length is set by the KL model);
+    a part with the svrpo.lifecycle.Part methods (start, state_dict, load_state_dict)."""
 
     def direction(self, gradient: torch.Tensor, fisher_product: MatVec) -> Direction:
         """(s, the CG result if a solve was run, else None)."""
         ...
 
+    def start(self, gradients: BatchGradients) -> None: ...
+
+    def state_dict(self) -> dict[str, Any]: ...
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None: ...
+
 
 @dataclass(frozen=True)
-class FisherMetric:
+class FisherMetric(Part):
     """s = F^{-1} g by conjugate gradient: the natural gradient."""
 
     cg_iters: int
@@ -137,11 +150,18 @@ class FisherMetric:
 
 
 @dataclass(frozen=True)
-class IdentityMetric:
+class IdentityMetric(Part):
     """s = g: no preconditioning (the paper's Fig. 3 ablation); the step length still uses F."""
 
     def direction(self, gradient: torch.Tensor, fisher_product: MatVec) -> Direction:
         return gradient.clone(), None
+
+
+METRICS: dict[str, Callable[[Config, RandomStreams], DirectionMetric]] = {
+    "fisher": lambda config, streams: FisherMetric(config.cg_iters, config.cg_residual_tol),
+    "identity": lambda config, streams: IdentityMetric(),
+}
+"""config.metric value -> (config, the run's random streams) -> the direction-metric part."""
 
 
 def max_step_length(direction: torch.Tensor, fisher_product: MatVec, max_kl: float) -> float | None:
