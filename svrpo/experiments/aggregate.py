@@ -56,9 +56,13 @@ def normalised(returns: np.ndarray, random_return: float, reference_return: floa
     return (np.asarray(returns, dtype=np.float64) - random_return) / span
 
 
-def iqm(scores: Scores, trim: float = 0.25) -> float:
+IQM_TRIM = 0.25
+"""Share of the pooled scores cut at each end for the interquartile mean."""
+
+
+def iqm(scores: Scores, trim: float = IQM_TRIM) -> float:
     """Interquartile mean of all runs' scores pooled over tasks: the n pooled scores sorted, the
-    lowest and highest int(0.25 n) cut, the rest averaged (scipy.stats.trim_mean's rule, in
+    lowest and highest int(IQM_TRIM n) cut, the rest averaged (scipy.stats.trim_mean's rule, in
     NumPy: trim_mean's argument checks cost ~100x the arithmetic, and the bootstrap calls this
     tens of thousands of times)."""
     pooled = np.sort(np.concatenate([np.asarray(s, dtype=np.float64) for s in scores]))
@@ -192,7 +196,7 @@ def _row_iqm(pooled: np.ndarray) -> np.ndarray:
     row holding a run without a score is reduced to its finite values first."""
     if np.isfinite(pooled).all():
         ordered = np.sort(pooled, axis=1)
-        cut = int(0.25 * pooled.shape[1])
+        cut = int(IQM_TRIM * pooled.shape[1])
         return np.asarray(ordered[:, cut : pooled.shape[1] - cut].mean(axis=1))
     return np.array([iqm([row[np.isfinite(row)]]) if np.isfinite(row).any() else math.nan for row in pooled])
 

@@ -84,13 +84,13 @@ def t_interval(values: np.ndarray | Sequence[float], confidence: float = CONFIDE
 
     Exact for normal seeds and the standard small-sample interval otherwise: with n = 5 the
     quantile is 2.78 against the normal's 1.96, the width a percentile bootstrap lacks."""
-    finite = np.asarray(values, dtype=np.float64)
-    finite = finite[np.isfinite(finite)]
-    if finite.size < 2:
+    seeds = np.asarray(values, dtype=np.float64)
+    seeds = seeds[np.isfinite(seeds)]
+    if seeds.size < 2:
         return math.nan, math.nan
-    mean = float(finite.mean())
-    quantile = float(stats.t.ppf(0.5 + confidence / 2, finite.size - 1))
-    half = quantile * float(finite.std(ddof=1)) / math.sqrt(finite.size)
+    mean = float(seeds.mean())
+    quantile = float(stats.t.ppf(0.5 + confidence / 2, seeds.size - 1))
+    half = quantile * float(seeds.std(ddof=1)) / math.sqrt(seeds.size)
     return mean - half, mean + half
 
 
