@@ -149,7 +149,8 @@ class MlpValueFunction:
           alignments, so padding rows keep every slice aligned).
         * The backward pass by hand, with the products autograd runs: for z = a W^T + b,
           dW = dz^T a, db = dz summed over rows, da = dz W, then tanh_backward; the loss
-          gradient (2 (v - y)) * (1/B) is what autograd's pow and mean give.
+          gradient (2 (v - y)) * (1/B) is what autograd's pow and mean give (computed as
+          (v - y) * (2/B), the same bits).
         * Adam (torch.optim's single-tensor step, op for op) once over one flat vector holding
           every parameter, each in its own 64-byte-aligned slot (zero padding stays zero), in
           place of a step per tensor; elementwise kernels give the same result for an element
@@ -183,6 +184,9 @@ class MlpValueFunction:
             size = self.minibatch_size
             padded = size + _rows_to_align(size, width)  # rows per slot of the gathered inputs
             starts = list(range(0, count, size))
+            tanh, addmm, mm, total_over_rows = torch.tanh, torch.addmm, torch.mm, torch.sum
+            tanh_backward = torch.ops.aten.tanh_backward
+            denominator = torch.empty(total)
             for _ in range(self.epochs):
                 order = torch.randperm(count, generator=self.generator)
                 rows = order
@@ -191,29 +195,31 @@ class MlpValueFunction:
                     for index, start in enumerate(starts):
                         chunk = order[start : start + size]
                         rows[index * padded : index * padded + chunk.numel()] = chunk
-                inputs, outputs = observations[rows], targets[order]
-                for index, start in enumerate(starts):
-                    batch = min(size, count - start)
-                    hidden = inputs[index * padded : index * padded + batch]
+                inputs = observations[rows].split(padded)
+                outputs = targets[order].unsqueeze(-1).split(size)  # (B, 1), like the values
+                for hidden, target in zip(inputs, outputs, strict=True):
+                    batch = target.shape[0]
+                    if hidden.shape[0] != batch:
+                        hidden = hidden[:batch]
                     activations = [hidden]
                     for k in range(layers - 1):
-                        hidden = torch.tanh(torch.addmm(biases[k], hidden, transposed[k]))
+                        hidden = tanh(addmm(biases[k], hidden, transposed[k]))
                         activations.append(hidden)
-                    values = torch.addmm(biases[-1], hidden, transposed[-1])
-                    # d/dv mean (v - y)^2 as autograd computes it: (2 (v - y)) * (1/B).
-                    upstream = (2.0 * (values.squeeze(-1) - outputs[start : start + batch])).mul_(1.0 / batch)
-                    upstream = upstream.unsqueeze(-1)
+                    # d/dv mean (v - y)^2 as autograd computes it, (2 (v - y)) * fl(1/B), equals
+                    # (v - y) * fl(2/B) bit for bit: both are the rounding of the same product
+                    # (doubling is exact and fl(2/B) = 2 fl(1/B)).
+                    upstream = (addmm(biases[-1], hidden, transposed[-1]) - target).mul_(2.0 / batch)
                     for k in range(layers - 1, -1, -1):
-                        torch.sum(upstream, 0, keepdim=True, out=d_biases[k])
-                        torch.mm(upstream.t(), activations[k], out=d_weights[k])
+                        total_over_rows(upstream, 0, keepdim=True, out=d_biases[k])
+                        mm(upstream.t(), activations[k], out=d_weights[k])
                         if k > 0:
-                            upstream = torch.ops.aten.tanh_backward(upstream.mm(weights[k]), activations[k])
+                            upstream = tanh_backward(upstream.mm(weights[k]), activations[k])
                     step += 1
                     exp_avg.lerp_(grad, 1 - beta1)
                     exp_avg_sq.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
                     bias_correction1 = 1 - beta1**step
                     bias_correction2 = 1 - beta2**step
-                    denominator = (exp_avg_sq.sqrt() / bias_correction2**0.5).add_(eps)
+                    torch.sqrt(exp_avg_sq, out=denominator).div_(bias_correction2**0.5).add_(eps)
                     flat.addcdiv_(exp_avg, denominator, value=-(lr / bias_correction1))
             for p, view, state, (start, end) in zip(params, views, states, slots, strict=True):
                 p.copy_(view)
