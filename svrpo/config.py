@@ -1,6 +1,6 @@
 """Frozen, typed run configuration, named presets and validation.
 
-Every ablation in the paper is one field: `estimator` (svrg | sgd | full; also sarah | storm), `metric`
+Every ablation in the paper is one field: `estimator` (svrg | sgd | full; also sarah | storm | page), `metric`
 (fisher | identity) and `surrogate` (ratio | loglik). Presets are complete configs; the CLI
 overrides any field by name.
 """
@@ -14,7 +14,7 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
-Estimator = Literal["full", "sgd", "svrg", "sarah", "storm"]
+Estimator = Literal["full", "sgd", "svrg", "sarah", "storm", "page"]
 Metric = Literal["fisher", "identity"]
 Surrogate = Literal["ratio", "loglik"]
 KlAnchor = Literal["sampling", "iterate"]
@@ -45,13 +45,18 @@ class Config:
     """Gradient used at each inner step: `svrg` (g~ + mean_I(grad U_t(w) - grad U_t(w~))),
     `sgd` (mean_I grad U_t(w), the paper's Fig. 2 ablation), `full` (grad U(w) on all N: TRPO),
     `sarah` (v_0 = g~, v_j = v_{j-1} + mean_I(grad U_t(w_j) - grad U_t(w_{j-1}))) or `storm`
-    (d_0 = g~, d_j = mean_I grad U_t(w_j) + (1 - a)(d_{j-1} - mean_I grad U_t(w_{j-1})))."""
+    (d_0 = g~, d_j = mean_I grad U_t(w_j) + (1 - a)(d_{j-1} - mean_I grad U_t(w_{j-1}))) or `page`
+    (v_0 = g~; v_j = grad U(w_j) on all N rows with probability p, else the sarah step)."""
     minibatch_size: int = 1_000
     """m: samples per inner-step mini-batch (ignored by `full`)."""
     inner_steps: int = 10
     """J: inner steps per outer iteration (1 for `full`)."""
     storm_momentum: float = 0.1
     """a in (0, 1]: STORM's momentum (estimator `storm` only; a = 1 is plain SGD, a -> 0 SARAH)."""
+    page_probability: float = 0.2
+    """p in (0, 1]: PAGE's chance of a full-batch gradient at an inner step (estimator `page` only;
+    p = 1 is the full gradient at every step, p -> 0 SARAH). 0.2 = m / (m + N) at the modern scale
+    (512 / 2,560): the PAGE papers' choice p = b / (B + b) for mini-batch b and large batch B."""
 
     # --- the trust-region step ---
     metric: Metric = "fisher"
@@ -267,6 +272,7 @@ def validate(config: Config) -> Config:
         (c.estimator != "full" or c.inner_steps == 1,
          "estimator 'full' (TRPO) takes inner_steps (J) = 1"),
         (0 < c.storm_momentum <= 1, "storm_momentum (a) must be in (0, 1]"),
+        (0 < c.page_probability <= 1, "page_probability (p) must be in (0, 1]"),
         (c.cg_iters >= 1, "cg_iters must be >= 1"),
         (0 <= c.cg_damping < math.inf, "cg_damping must be >= 0 and finite"),
         (0 <= c.cg_residual_tol < math.inf, "cg_residual_tol must be >= 0 and finite"),
@@ -311,7 +317,7 @@ PAPER_INNER: dict[str, tuple[int, int, int]] = {
 _DEEP_TASKS = ("Ant", "Humanoid")
 
 PRESET_NAMES = ("trpo", "svrpo", "svrpo-loglik", "svrpo-sgd", "svrpo-identity", "svrpo-sarah",
-                "svrpo-storm")
+                "svrpo-storm", "svrpo-page")
 SCALES: tuple[Scale, ...] = ("paper", "laptop", "modern")
 
 # The ablation field of each preset relative to `svrpo`.
@@ -322,6 +328,7 @@ _ABLATIONS: dict[str, dict[str, Any]] = {
     "svrpo-identity": {"metric": "identity"},
     "svrpo-sarah": {"estimator": "sarah"},
     "svrpo-storm": {"estimator": "storm"},
+    "svrpo-page": {"estimator": "page"},
 }
 
 

@@ -11,6 +11,8 @@ per inner step. All of them read the iteration's batch only, through `BatchGradi
                        (SARAH, Nguyen et al. 2017; SPIDER; as in SARAPO);
 * `StormGradient`      d_0 = g~, d_j = mean_I grad U_t(w_j) + (1 - a)(d_{j-1} - mean_I grad U_t(w_{j-1}))
                        (STORM, Cutkosky & Orabona 2019; STORM-PG).
+* `PageGradient`       v_0 = g~; v_j = grad U(w_j) on all N rows with probability p, else the
+                       SARAH step (PAGE, Li et al. 2021; PAGE-PG, Gargiani et al. 2022).
 
 `ESTIMATORS` maps each config value of `estimator` to the factory that builds its part; a new
 estimator is a class and one line there (plus its config value). A user's estimator is any
@@ -248,12 +250,53 @@ class StormGradient(_Recursive):
         return storm_gradient(previous_estimate, minibatch, minibatch_previous, self.momentum)
 
 
+class PageGradient(_Recursive):
+    """PAGE inside the trust region: v_0 = g~; at step j >= 1, with probability p the full batch
+    gradient grad U(w_j) on all N rows, otherwise the SARAH step
+    v_j = v_{j-1} + mean_I(grad U_t(w_j) - grad U_t(w_{j-1}))
+    (Li, Bao, Zhang, Richtarik 2021, PAGE; Gargiani, Zanelli, Martinelli, Summers, Lygeros 2022,
+    PAGE-PG). A full step resets the SARAH path's accumulated error to zero; p = 1 is the full
+    gradient at every step, p -> 0 SARAH. The coin of each step comes from the run's stream
+    "page"; `peek` looks at the coin without drawing it, so peek returns what estimate would.
+    """
+
+    def __init__(self, probability: float, generator: torch.Generator) -> None:
+        if not 0.0 < probability <= 1.0:
+            raise ValueError(f"PAGE probability must be in (0, 1], got {probability}")
+        super().__init__()
+        self.probability = probability
+        self.generator = generator
+
+    def _next_step_is_full(self) -> bool:
+        """This step's coin without consuming it (the generator's state is put back)."""
+        state = self.generator.get_state()
+        coin = float(torch.rand((), generator=self.generator))
+        self.generator.set_state(state)
+        return coin < self.probability
+
+    def peek(self, indices: torch.Tensor) -> torch.Tensor:
+        if self._previous is None:
+            return self.gradients.snapshot_full.clone()
+        if self._next_step_is_full():
+            return self.gradients.at_current(None)
+        point, estimate = self._previous
+        return sarah_gradient(estimate, self.gradients.at_current(indices), self.gradients.at(point, indices))
+
+    def estimate(self, indices: torch.Tensor) -> torch.Tensor:
+        drew_coin = self._previous is not None
+        value = super().estimate(indices)  # peek, and record the step if finite
+        if drew_coin:
+            torch.rand((), generator=self.generator)  # consume the coin peek looked at
+        return value
+
+
 ESTIMATORS: dict[str, Callable[[Config, RandomStreams], GradientEstimator]] = {
     "full": lambda config, streams: FullGradient(),
     "sgd": lambda config, streams: MinibatchGradient(),
     "svrg": lambda config, streams: SvrgGradient(),
     "sarah": lambda config, streams: SarahGradient(),
     "storm": lambda config, streams: StormGradient(config.storm_momentum),
+    "page": lambda config, streams: PageGradient(config.page_probability, streams.generator("page")),
 }
 """config.estimator value -> (config, the run's random streams) -> the estimator part."""
 

@@ -16,6 +16,7 @@ from svrpo.estimators import (
     FullGradient,
     GradientEstimator,
     MinibatchGradient,
+    PageGradient,
     SarahGradient,
     StormGradient,
     SubsetGradient,
@@ -204,6 +205,46 @@ def test_storm_recursion_on_tables() -> None:
     gradients.position = 1
     # d_1 = g_I(w_1) + 0.75 (d_0 - g_I(w_0)), I = {1}: (3.5, 2) + 0.75 ((2, 1) - (3, 2)) = (2.75, 1.25)
     assert torch.equal(storm.estimate(torch.tensor([1])), torch.tensor([2.75, 1.25], dtype=torch.float64))
+
+
+@pytest.mark.parametrize(("seed", "full_step"), [(0, True), (1, False)])
+def test_page_takes_the_full_gradient_or_the_sarah_step_by_its_coin(seed: int, full_step: bool) -> None:
+    """v_0 = g~; then, per step, a uniform draw u from the stream: u < p gives grad U(w_j) on all
+    rows, else the SARAH step. Hand-computed on the tables; peek looks at the coin without
+    consuming it, and estimate consumes exactly one draw per step after the first. (Seed 0's
+    first coin is 0.496, seed 1's 0.758: one case of each side at p = 0.5.)"""
+    generator = torch.Generator().manual_seed(seed)
+    coins = [float(torch.rand((), generator=generator)) for _ in range(2)]
+    assert (coins[0] < 0.5) == full_step
+    generator.manual_seed(seed)
+    probability = 0.5
+    gradients = TableGradients([AT_SNAPSHOT, AT_W])
+    page = PageGradient(probability, generator)
+    page.start(gradients)  # type: ignore[arg-type]
+    assert torch.equal(page.estimate(torch.tensor([1])), torch.tensor([2.0, 1.0], dtype=torch.float64))
+    gradients.position = 1
+    full = torch.tensor([2.5, 1.0], dtype=torch.float64)  # grad U(w_1)
+    sarah = torch.tensor([3.5, 1.0], dtype=torch.float64)  # v_0 + row 2 (w_1 - w_0) = (2, 1) + (1.5, 0)
+    expected = full if coins[0] < probability else sarah
+    before = generator.get_state()
+    assert torch.equal(page.peek(torch.tensor([2])), expected)
+    assert torch.equal(generator.get_state(), before)  # peek drew nothing
+    assert torch.equal(page.estimate(torch.tensor([2])), expected)
+    assert float(torch.rand((), generator=generator)) == coins[1]  # exactly one coin consumed
+
+
+def test_page_with_probability_one_is_the_full_gradient_and_bad_probabilities_are_refused() -> None:
+    gradients = TableGradients([AT_SNAPSHOT, AT_W])
+    page = PageGradient(1.0, torch.Generator().manual_seed(0))
+    page.start(gradients)  # type: ignore[arg-type]
+    page.estimate(torch.tensor([0]))
+    gradients.position = 1
+    for rows in ([0], [1], [3]):
+        assert torch.equal(page.estimate(torch.tensor(rows)), torch.tensor([2.5, 1.0], dtype=torch.float64))
+    for bad in (0.0, -0.5, 1.5):
+        with pytest.raises(ValueError, match="probability"):
+            PageGradient(bad, torch.Generator())
+    assert PageGradient.path_dependent and not SvrgGradient.path_dependent
 
 
 def test_recursion_formulas() -> None:

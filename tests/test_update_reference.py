@@ -32,6 +32,7 @@ from svrpo.objectives import SurrogateBatch
 from svrpo.parameters import flat_parameters, set_flat_parameters
 from svrpo.parts import update_parts
 from svrpo.policy import GaussianMlpPolicy
+from svrpo.streams import stream_seed
 from svrpo.trust_region.metrics import fisher_vector_product
 from svrpo.update import UpdateStats, update_policy
 
@@ -191,6 +192,8 @@ class Trace:
     """Trials that improved U but left the KL ball (only the KL condition rejected them)."""
     improvement_rejections: int = 0
     """Trials inside the KL ball that did not improve U (only the improvement condition)."""
+    full_steps: int = 0
+    """PAGE steps that took the full-batch gradient (the coin's other side is a SARAH step)."""
 
 
 @dataclass(frozen=True)
@@ -251,15 +254,20 @@ def trust_region_anchor(anchor: str, w: torch.Tensor, rows: Rows) -> tuple[torch
 
 
 def recursive_estimate(config: Config, w: torch.Tensor, previous: tuple[torch.Tensor, torch.Tensor] | None,
-                       snapshot_gradient: torch.Tensor, sampled: Rows) -> torch.Tensor:
+                       snapshot_gradient: torch.Tensor, sampled: Rows, full_step: bool = False,
+                       rows: Rows | None = None) -> torch.Tensor:
     """sarah: v_0 = g~, v_j = v_{j-1} + grad U_I(w_j) - grad U_I(w_{j-1});
-    storm: d_0 = g~, d_j = grad U_I(w_j) + (1 - a)(d_{j-1} - grad U_I(w_{j-1}))."""
+    storm: d_0 = g~, d_j = grad U_I(w_j) + (1 - a)(d_{j-1} - grad U_I(w_{j-1}));
+    page: v_0 = g~, v_j = grad U(w_j) on all rows if this step's coin came up full, else sarah."""
     if previous is None:
         return snapshot_gradient.clone()
+    if full_step:
+        assert rows is not None
+        return surrogate_gradient(w, rows, config.surrogate)
     w_previous, estimate = previous
     now = surrogate_gradient(w, sampled, config.surrogate)
     before = surrogate_gradient(w_previous, sampled, config.surrogate)
-    if config.estimator == "sarah":
+    if config.estimator in ("sarah", "page"):
         return estimate + now - before
     return now + (1 - config.storm_momentum) * (estimate - before)
 
@@ -276,14 +284,20 @@ def reference_update(start: torch.Tensor, rows: Rows, config: Config, seed: int)
     snapshot_gradient = surrogate_gradient(snapshot, rows, config.surrogate)  # g~ on all N rows
 
     trace, w = Trace(), start.clone()
-    previous: tuple[torch.Tensor, torch.Tensor] | None = None  # (w_{j-1}, estimate_{j-1}): sarah, storm
+    previous: tuple[torch.Tensor, torch.Tensor] | None = None  # (w_{j-1}, estimate_{j-1}): sarah, storm, page
+    # PAGE's coins: one uniform draw per step after the first, from the run's stream "page".
+    coins = torch.Generator().manual_seed(stream_seed(config.seed, "page"))
     for step in range(config.inner_steps):
         trace.attempted += 1
         # The same two draws, in the same order, as update_policy: mini-batch, then Fisher subset.
         minibatch = draw_rows(count, minibatch_size, generator)
         fisher_rows = draw_rows(count, fisher_size, generator)
-        if config.estimator in ("sarah", "storm"):
-            gradient = recursive_estimate(config, w, previous, snapshot_gradient, rows.subset(minibatch))
+        if config.estimator in ("sarah", "storm", "page"):
+            full_step = (config.estimator == "page" and previous is not None
+                         and float(torch.rand((), generator=coins)) < config.page_probability)
+            trace.full_steps += full_step
+            gradient = recursive_estimate(config, w, previous, snapshot_gradient, rows.subset(minibatch),
+                                          full_step, rows)
             previous = (w.clone(), gradient)
         else:
             gradient = gradient_estimate(config.estimator, w, snapshot, snapshot_gradient, rows, minibatch,
@@ -430,6 +444,8 @@ SCENARIOS = [
     _scenario("sarah", "identity", "loglik", "iterate", "failed_search", MOVED),
     _scenario("storm", "fisher", "ratio", "iterate", "all", MOVED, storm_momentum=0.3),
     _scenario("storm", "fisher", "loglik", "sampling", "failed_search", MOVED, storm_momentum=0.7),
+    _scenario("page", "fisher", "ratio", "sampling", "all", MOVED, page_probability=0.75),
+    _scenario("page", "identity", "loglik", "iterate", "failed_search", MOVED, page_probability=0.55),
     # TRPO (rllab's backtracking 0.8 x 15, here 0.8 x 3 so that the first trial is rejected).
     _scenario("full", "fisher", "ratio", "sampling", "all", {"accepted", "backtrack", "kl_rejection"},
               seed=1, max_kl=0.2, backtrack_ratio=0.8, max_backtracks=3),
@@ -497,6 +513,14 @@ def test_scenarios_cover_every_option_and_event() -> None:
     for name, values in options.items():
         assert {getattr(s.config, name) for s in SCENARIOS} == values, name
     assert set().union(*(s.expect for s in SCENARIOS)) == EVENTS
+
+
+def test_page_scenarios_take_both_kinds_of_step() -> None:
+    """Each PAGE scenario draws a full-gradient step and a SARAH step after the first, so the
+    reference comparison covers both sides of the coin."""
+    for scenario in (s for s in SCENARIOS if s.config.estimator == "page"):
+        trace = run_reference(scenario).trace
+        assert 1 <= trace.full_steps <= trace.attempted - 2, (scenario.name, trace)
 
 
 def test_variance_probe_does_not_change_the_update() -> None:
