@@ -7,6 +7,7 @@ the per-experiment reports (svrpo.experiments.report).
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import warnings
@@ -18,12 +19,15 @@ from typing import Literal
 
 import numpy as np
 
+from svrpo.config import PRESET_NAMES
 from svrpo.logging import read_progress
 
 # The same preset keeps its colour in every figure (the paper draws SVRPO red, TRPO blue).
-PRESET_COLORS = {"svrpo": "tab:red", "trpo": "tab:blue", "svrpo-loglik": "tab:orange",
-                 "svrpo-sgd": "tab:green", "svrpo-identity": "tab:purple", "svrpo-sarah": "tab:brown",
-                 "svrpo-storm": "tab:olive"}
+_COLOR_CYCLE = ("tab:blue", "tab:red", "tab:orange", "tab:green", "tab:purple", "tab:brown",
+                "tab:olive", "tab:cyan", "tab:pink", "tab:gray")
+PRESET_COLORS = dict(zip(PRESET_NAMES, itertools.cycle(_COLOR_CYCLE), strict=False))
+"""Each preset's colour in every figure, from the preset table's order (trpo blue, svrpo red, ...):
+a new preset gets the next colour of the cycle without an edit here."""
 
 Groups = Mapping[str, Mapping[str, Sequence["RunCurve"]]]
 """panel title (task) -> line label (preset) -> one curve per seed."""

@@ -252,10 +252,23 @@ def test_plot_refuses_an_unknown_metric_and_a_non_positive_window(
     assert not (run / "learning_curve.png").exists()
 
 
-def test_recursive_estimators_get_a_figure_of_their_own_error(tmp_path: Path,
+def _path_dependent_presets() -> list[str]:
+    from svrpo.config import PRESET_NAMES
+    from svrpo.parts import estimator_for
+
+    return [p for p in PRESET_NAMES if estimator_for(make_preset(p, "Hopper-v5", "laptop")).path_dependent]
+
+
+def test_the_path_dependent_presets_are_the_recursions() -> None:
+    assert set(_path_dependent_presets()) >= {"svrpo-sarah", "svrpo-storm", "svrpo-page"}
+    assert not {"svrpo", "svrpo-sgd", "trpo"} & set(_path_dependent_presets())
+
+
+@pytest.mark.parametrize("recursive", _path_dependent_presets())
+def test_recursive_estimators_get_a_figure_of_their_own_error(tmp_path: Path, recursive: str,
                                                               capsys: pytest.CaptureFixture[str]) -> None:
-    """estimator_error_ratio.png: only when an experiment holds a sarah or storm run, from the
-    estimator_variance_ratio column (figure2's report above has none)."""
+    """estimator_error_ratio.png: only when an experiment holds a run whose estimator part is path
+    dependent, from the estimator_variance_ratio column (figure2's report above has none)."""
     without = tmp_path / "without"
     write_experiment(without)
     assert main(["plot", str(without)]) == 0
@@ -263,7 +276,7 @@ def test_recursive_estimators_get_a_figure_of_their_own_error(tmp_path: Path,
 
     root = tmp_path / "runs"
     curve = list(10.0 * np.arange(1, ITERATIONS + 1))
-    for preset in ("svrpo", "svrpo-sarah", "trpo"):
+    for preset in ("svrpo", recursive, "trpo"):
         ratios = None if preset == "trpo" else [0.5] * ITERATIONS
         run_dir = write_run(root, "Hopper-v5", preset, 0, curve, ratios)
         if preset != "trpo":
@@ -271,10 +284,19 @@ def test_recursive_estimators_get_a_figure_of_their_own_error(tmp_path: Path,
             rows = list(csv.reader(path.open(newline="")))
             rows[0].append("estimator_variance_ratio")
             for row in rows[1:]:
-                row.append("0.3" if preset == "svrpo-sarah" else "0.5")
+                row.append("0.3" if preset == recursive else "0.5")
             with open(path, "w", newline="") as handle:
                 csv.writer(handle).writerows(rows)
     assert main(["plot", str(root)]) == 0
     figure = root / "figure2-laptop" / "estimator_error_ratio.png"
     assert f"wrote {figure}" in capsys.readouterr().out
     assert figure.read_bytes()[:8] == PNG
+
+
+def test_every_preset_has_its_own_colour_and_the_paper_keeps_svrpo_red_trpo_blue() -> None:
+    from svrpo.config import PRESET_NAMES
+    from svrpo.plotting import PRESET_COLORS
+
+    assert set(PRESET_COLORS) == set(PRESET_NAMES)
+    assert len(set(PRESET_COLORS.values())) == len(PRESET_NAMES)
+    assert (PRESET_COLORS["svrpo"], PRESET_COLORS["trpo"]) == ("tab:red", "tab:blue")

@@ -3,7 +3,6 @@ panel and the table (markdown and CSV). Reads run directories only."""
 
 from __future__ import annotations
 
-import json
 import os
 from collections import defaultdict
 from collections.abc import Sequence
@@ -59,9 +58,9 @@ def write_report(experiment: str, scale: str, run_dirs: Sequence[Path], out_dir:
     if probed:
         written.append(plot_panels(probed, out_dir / "variance_ratio.png", "variance ratio SVRG / SGD",
                                    x_axis="iteration", log_scale=True, title=title, reference=1.0))
-    # Each run's own estimator against SGD (SARAH's and STORM's mean squared error; for SVRG the
-    # same as above): drawn only for experiments with a recursive estimator.
-    if any(_estimator(d) in ("sarah", "storm") for d in run_dirs):
+    # Each run's own estimator against SGD (a recursion's mean squared error, e.g. SARAH's; for
+    # SVRG the same as above): drawn only for experiments with a path-dependent estimator.
+    if any(_path_dependent(d) for d in run_dirs):
         own = _nested([load_curve(d, "estimator_variance_ratio") for d in run_dirs], experiment)
         own = {task: {p: r for p, r in presets.items() if _has_positive(r)} for task, presets in own.items()}
         own = {task: presets for task, presets in own.items() if presets}
@@ -103,8 +102,17 @@ def _nested(curves: Sequence[RunCurve], experiment: str) -> Nested:
             for task in sorted(groups, key=task_key)}
 
 
-def _estimator(run_dir: Path) -> str:
-    return str(json.loads((run_dir / "config.json").read_text()).get("estimator", ""))
+def _path_dependent(run_dir: Path) -> bool:
+    """Whether the run's estimator part says its estimates depend on the inner path (asked of
+    the part its registry builds, so a new recursive estimator is drawn without an edit here)."""
+    from svrpo.config import Config, ConfigError
+    from svrpo.parts import estimator_for
+
+    try:
+        config = Config.from_json((run_dir / "config.json").read_text())
+    except (OSError, ValueError, ConfigError):
+        return False
+    return bool(estimator_for(config).path_dependent)
 
 
 def _has_positive(runs: Sequence[RunCurve]) -> bool:
