@@ -53,6 +53,15 @@ def test_the_bootstrap_of_p_resamples_within_tasks() -> None:
     assert (estimate.value, estimate.low, estimate.high) == (0.5, 0.5, 0.5)
 
 
+def test_the_bootstrap_of_p_draws_the_two_presets_independently() -> None:
+    """x = (0, 2), y = (1, 3) on one task, P = 1/4. Independent draws include x* = (2, 2)
+    against y* = (1, 1) (P* = 1) in 1/16 of the resamples and x* = (0, 0) (P* = 0) in 1/4, so the
+    2.5 and 97.5 percentiles of 2,000 are 0 and 1. Drawing y with x's indices would pair them:
+    P* in {0, 1/4} only."""
+    estimate = probability_bootstrap([np.array([0.0, 2.0])], [np.array([1.0, 3.0])])
+    assert (estimate.value, estimate.low, estimate.high) == (0.25, 0.0, 1.0)
+
+
 def test_bootstrap_intervals_cover_the_point_and_shrink_with_more_runs() -> None:
     rng = np.random.default_rng(1)
 
