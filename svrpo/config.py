@@ -17,7 +17,7 @@ from typing import Any, Literal
 Estimator = Literal["full", "sgd", "svrg", "sarah", "storm", "page"]
 Metric = Literal["fisher", "identity"]
 Surrogate = Literal["ratio", "loglik"]
-KlAnchor = Literal["sampling", "iterate"]
+KlAnchor = Literal["sampling", "iterate", "budgeted"]
 InnerStop = Literal["all", "failed_search"]
 BaselineKind = Literal["linear", "mlp"]
 Scale = Literal["paper", "laptop", "modern"]
@@ -69,14 +69,21 @@ class Config:
     (the authors' code). Same gradient at w = pi_old."""
     kl_anchor: KlAnchor = "sampling"
     """Policy the trust region is measured from: `sampling` (pi_old, all J steps share one
-    delta-ball, the authors' code) or `iterate` (each inner step bounded around w_j)."""
+    delta-ball, the authors' code), `iterate` (each inner step bounded around w_j), or `budgeted`
+    (each step bounded by kl_step around w_j, and every accepted iterate within a total
+    KL(pi_old || pi_w) <= max_kl: the inner loop may move up to delta in several steps)."""
     inner_stop: InnerStop = "failed_search"
     """When the inner loop ends (J is the *maximum* number of inner steps, Algorithm 1): `all`
     runs all J (the authors' code); `failed_search` stops after the first inner step whose line
     search accepts no trial, i.e. once the trust region is used up (with kl_anchor `sampling`
     every later step starts from the same point and meets the same delta-ball)."""
     max_kl: float = 0.01
-    """delta: bound on the mean KL(anchor || new) accepted by the line search."""
+    """delta: bound on the mean KL(anchor || new) accepted by the line search (with kl_anchor
+    `budgeted`: the iteration's total budget of KL from the sampling policy)."""
+    kl_step: float | None = None
+    """Per-step KL radius of kl_anchor `budgeted` (ignored otherwise). None: max_kl / J^1.5, the
+    rule under which J nearly parallel steps spend about the whole budget (measured: the steps
+    of one iteration moved 22-25 step radii at J = 8; trust_region.anchors.budgeted_step_radius)."""
     cg_iters: int = 10
     """Conjugate-gradient iterations per solve."""
     cg_damping: float = 1e-5
@@ -213,10 +220,10 @@ def coerce_field(name: str, value: Any) -> Any:
 
 def _coerce(name: str, hint: Any, value: Any) -> Any:
     origin = typing.get_origin(hint)
-    if hint == (int | None):  # an optional integer: none/null, or the integer itself
+    if hint in (int | None, float | None):  # optional: none/null, or the number itself
         if value is None or (isinstance(value, str) and value.lower() in ("none", "null")):
             return None
-        return _coerce(name, int, value)
+        return _coerce(name, int if hint == (int | None) else float, value)
     try:
         if origin is Literal:
             choices = typing.get_args(hint)
@@ -273,6 +280,7 @@ def validate(config: Config) -> Config:
          "estimator 'full' (TRPO) takes inner_steps (J) = 1"),
         (0 < c.storm_momentum <= 1, "storm_momentum (a) must be in (0, 1]"),
         (0 < c.page_probability <= 1, "page_probability (p) must be in (0, 1]"),
+        (c.kl_step is None or 0 < c.kl_step < math.inf, "kl_step must be > 0 and finite (or none)"),
         (c.cg_iters >= 1, "cg_iters must be >= 1"),
         (0 <= c.cg_damping < math.inf, "cg_damping must be >= 0 and finite"),
         (0 <= c.cg_residual_tol < math.inf, "cg_residual_tol must be >= 0 and finite"),
@@ -317,7 +325,7 @@ PAPER_INNER: dict[str, tuple[int, int, int]] = {
 _DEEP_TASKS = ("Ant", "Humanoid")
 
 PRESET_NAMES = ("trpo", "svrpo", "svrpo-loglik", "svrpo-sgd", "svrpo-identity", "svrpo-sarah",
-                "svrpo-storm", "svrpo-page")
+                "svrpo-storm", "svrpo-page", "svrpo-budgeted")
 SCALES: tuple[Scale, ...] = ("paper", "laptop", "modern")
 
 # The ablation field of each preset relative to `svrpo`.
@@ -329,6 +337,7 @@ _ABLATIONS: dict[str, dict[str, Any]] = {
     "svrpo-sarah": {"estimator": "sarah"},
     "svrpo-storm": {"estimator": "storm"},
     "svrpo-page": {"estimator": "page"},
+    "svrpo-budgeted": {"kl_anchor": "budgeted"},
 }
 
 

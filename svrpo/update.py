@@ -19,7 +19,7 @@ from svrpo.objectives import SurrogateBatch, per_sample_surrogate
 from svrpo.parameters import flat_parameters, set_flat_parameters
 from svrpo.parts import UpdateParts
 from svrpo.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
-from svrpo.trust_region.anchors import Gaussian
+from svrpo.trust_region.anchors import KlBound
 from svrpo.trust_region.metrics import max_step_length
 
 
@@ -62,6 +62,12 @@ class UpdateStats:
     error with the path held fixed, see estimators.estimator_variances)."""
     estimator_variance_ratio: float
     """estimator_error / sgd_variance (nan when off)."""
+    budget_rejections: int = 0
+    """Line-search trials rejected for leaving a further ball of the step's KlBound (the budgeted
+    anchor's total KL from the sampling policy); 0 for the sampling and iterate anchors."""
+    stopped_by_budget: int = 0
+    """1 if the loop stopped early at a search that rejected a trial for the total budget: the
+    iteration's KL budget was spent."""
 
 
 class _FullBatchEvaluator:
@@ -70,6 +76,7 @@ class _FullBatchEvaluator:
 
     def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> None:
         self.policy, self.batch, self.kind = policy, batch, kind
+        self.outside_further_balls = 0
 
     def mean(self) -> torch.Tensor:
         return self.policy.activations(self.batch.observations)[-1]
@@ -90,13 +97,21 @@ class _FullBatchEvaluator:
             log_std = self.policy.log_std.expand_as(mean)
             return float(gaussian_kl(anchor_mean, anchor_log_std, mean, log_std).mean())
 
-    def objective_and_kl(self, anchor: Gaussian) -> Callable[[], tuple[float, float]]:
-        """The line search's evaluate(): () -> (U(w), KL(anchor || pi_w)), one forward pass."""
-        anchor_mean, anchor_log_std = anchor
+    def objective_and_kl(self, bound: KlBound) -> Callable[[], tuple[float, float]]:
+        """The line search's evaluate(): () -> (U(w), KL(anchor || pi_w)), one forward pass. A
+        trial outside one of bound.also_within's balls reads as KL = inf (rejected), and is
+        counted in `outside_further_balls`."""
+        anchor_mean, anchor_log_std = bound.anchor
 
         def evaluate() -> tuple[float, float]:
             mean = self.mean()
-            return self.objective(mean), self.kl(anchor_mean, anchor_log_std, mean)
+            kl = self.kl(anchor_mean, anchor_log_std, mean)
+            for (other_mean, other_log_std), radius in bound.also_within:
+                if not self.kl(other_mean, other_log_std, mean) <= radius:
+                    self.outside_further_balls += 1
+                    kl = math.inf
+                    break
+            return self.objective(mean), kl
 
         return evaluate
 
@@ -134,7 +149,7 @@ def update_policy(
     expected = 0.0
     cg_residuals: list[float] = []
     cg_iterations: list[int] = []
-    attempted = stopped_early = 0
+    attempted = stopped_early = stopped_by_budget = 0
 
     for step in range(loop.inner_steps):
         attempted += 1
@@ -156,11 +171,12 @@ def update_policy(
             continue
 
         full_step = step_length * direction
+        rejections_before = full_batch.outside_further_balls
         result = parts.line_search(
             start=flat_parameters(policy),
             full_step=full_step,
             set_parameters=lambda flat: set_flat_parameters(policy, flat),
-            evaluate=full_batch.objective_and_kl(bound.anchor),
+            evaluate=full_batch.objective_and_kl(bound),
             # U(w_j) is U at the last accepted point (or at w~): a rejected search restores the
             # parameters exactly, so recomputing it would give the same number.
             start_objective=step_objective,
@@ -175,6 +191,7 @@ def update_policy(
             expected += float(gradient.dot(full_step)) * result.step_fraction
         if parts.stopping_rule.stop(result.accepted) and step < loop.inner_steps - 1:
             stopped_early = 1
+            stopped_by_budget = int(full_batch.outside_further_balls > rejections_before)
             break
 
     # The probe looks at the last inner iterate: the farthest the loop went from w~, where the
@@ -204,4 +221,6 @@ def update_policy(
         variance_ratio=diagnostic.ratio,
         estimator_error=diagnostic.estimator_error,
         estimator_variance_ratio=diagnostic.estimator_ratio,
+        budget_rejections=full_batch.outside_further_balls,
+        stopped_by_budget=stopped_by_budget,
     )

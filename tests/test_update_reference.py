@@ -19,10 +19,13 @@ failed search mid-loop, ...), so no case can pass vacuously.
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 import math
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import pytest
 import torch
@@ -33,6 +36,7 @@ from svrpo.parameters import flat_parameters, set_flat_parameters
 from svrpo.parts import update_parts
 from svrpo.policy import GaussianMlpPolicy
 from svrpo.streams import stream_seed
+from svrpo.trust_region.line_search import backtracking_line_search
 from svrpo.trust_region.metrics import fisher_vector_product
 from svrpo.update import UpdateStats, update_policy
 
@@ -194,6 +198,10 @@ class Trace:
     """Trials inside the KL ball that did not improve U (only the improvement condition)."""
     full_steps: int = 0
     """PAGE steps that took the full-batch gradient (the coin's other side is a SARAH step)."""
+    budget_rejections: int = 0
+    """Trials that improved U inside the step's own ball but outside the total budget."""
+    outside_budget: int = 0
+    """Trials outside the total budget (whatever else held): update_policy's budget_rejections."""
 
 
 @dataclass(frozen=True)
@@ -207,19 +215,25 @@ class Reference:
 
 
 def line_search(w: torch.Tensor, full_step: torch.Tensor, objective: Callable[[torch.Tensor], float],
-                kl: Callable[[torch.Tensor], float], config: Config, trace: Trace) -> torch.Tensor | None:
-    """The first w + r^k full_step (k < K) with U strictly above U(w) and KL <= delta, else None."""
+                balls: list[tuple[Callable[[torch.Tensor], float], float]], config: Config,
+                trace: Trace) -> torch.Tensor | None:
+    """The first w + r^k full_step (k < K) with U strictly above U(w) and, for every ball
+    (kl, radius), kl <= radius, else None. balls[0] is the step's own ball; a further one is the
+    budgeted anchor's total budget."""
     start_objective = objective(w)
     for k in range(config.max_backtracks):
         trial = w + config.backtrack_ratio**k * full_step
         trace.backtracks += 1
-        improves, inside = objective(trial) > start_objective, kl(trial) <= config.max_kl
+        inside_each = [kl(trial) <= radius for kl, radius in balls]
+        improves, inside = objective(trial) > start_objective, all(inside_each)
         if improves and inside:
             return trial
         # Count the trials that exactly one condition rejected: dropping that condition from
         # update_policy's line search would accept them, so the scenarios must contain some.
         trace.kl_rejections += int(improves and not inside)
         trace.improvement_rejections += int(inside and not improves)
+        trace.budget_rejections += int(improves and inside_each[0] and not inside)
+        trace.outside_budget += int(not all(inside_each[1:]))
     return None
 
 
@@ -242,6 +256,22 @@ def kl_from(anchor_mean: torch.Tensor, anchor_log_std: torch.Tensor,
             return float(mean_kl(anchor_mean, anchor_log_std, w, observations))
 
     return kl
+
+
+def trust_region(config: Config, w: torch.Tensor, snapshot: torch.Tensor,
+                 rows: Rows) -> tuple[float, list[tuple[Callable[[torch.Tensor], float], float]]]:
+    """(the step's radius, the balls a trial must stay in): sampling and iterate, one ball of
+    radius delta; budgeted, a ball of kl_step (default delta / J^1.5) around pi_{w_j} and the
+    total budget delta around pi_old, one ball of min(kl_step, delta) while w_j = w~."""
+    if config.kl_anchor != "budgeted":
+        anchor = kl_from(*trust_region_anchor(config.kl_anchor, w, rows), rows.observations)
+        return config.max_kl, [(anchor, config.max_kl)]
+    step = config.kl_step if config.kl_step is not None else config.max_kl / config.inner_steps**1.5
+    sampling = kl_from(rows.old_mean, rows.old_log_std, rows.observations)
+    if torch.equal(w, snapshot):
+        return min(step, config.max_kl), [(sampling, min(step, config.max_kl))]
+    iterate = kl_from(*trust_region_anchor("iterate", w, rows), rows.observations)
+    return step, [(iterate, step), (sampling, config.max_kl)]
 
 
 def trust_region_anchor(anchor: str, w: torch.Tensor, rows: Rows) -> tuple[torch.Tensor, torch.Tensor]:
@@ -307,10 +337,10 @@ def reference_update(start: torch.Tensor, rows: Rows, config: Config, seed: int)
         direction = search_direction(config.metric, gradient, damped_fisher)
         curvature = float(direction @ damped_fisher @ direction)
         assert curvature > 0, "no scenario is meant to skip a step"
-        step_length = math.sqrt(2 * config.max_kl / curvature)
-        kl = kl_from(*trust_region_anchor(config.kl_anchor, w, rows), rows.observations)
+        radius, balls = trust_region(config, w, snapshot, rows)
+        step_length = math.sqrt(2 * radius / curvature)
 
-        accepted = line_search(w, step_length * direction, objective, kl, config, trace)
+        accepted = line_search(w, step_length * direction, objective, balls, config, trace)
         if accepted is not None:
             w = accepted
             trace.accepted += 1
@@ -388,7 +418,7 @@ class Scenario:
 
 EVENTS = frozenset({
     "accepted", "several_accepted", "backtrack", "kl_rejection", "improvement_rejection",
-    "failed_midway", "failed_last", "stopped_early", "continued_after_failure",
+    "failed_midway", "failed_last", "stopped_early", "continued_after_failure", "budget_rejection",
 })
 
 
@@ -404,6 +434,7 @@ def events(trace: Trace, config: Config) -> set[str]:
         "failed_midway": any(step < last for step in trace.failed_steps),
         "failed_last": trace.failed_steps == [last],
         "stopped_early": trace.stopped_early == 1,
+        "budget_rejection": trace.budget_rejections > 0,
         "continued_after_failure": any(step < trace.attempted - 1 for step in trace.failed_steps),
     }
     assert happened.keys() == EVENTS
@@ -445,6 +476,14 @@ SCENARIOS = [
     _scenario("storm", "fisher", "ratio", "iterate", "all", MOVED, storm_momentum=0.3),
     _scenario("storm", "fisher", "loglik", "sampling", "failed_search", MOVED, storm_momentum=0.7),
     _scenario("page", "fisher", "ratio", "sampling", "all", MOVED, page_probability=0.75),
+    # The budgeted anchor: steps of KL 0.03-0.04 under a total budget of 0.05, so the budget binds.
+    _scenario("svrg", "fisher", "ratio", "budgeted", "failed_search",
+              {"accepted", "backtrack", "improvement_rejection", "failed_midway", "stopped_early"},
+              kl_step=0.04),
+    _scenario("sarah", "identity", "loglik", "budgeted", "all",
+              MOVED | {"budget_rejection", "kl_rejection", "failed_midway", "continued_after_failure"},
+              kl_step=0.03),
+    _scenario("sgd", "fisher", "ratio", "budgeted", "all", MOVED | {"kl_rejection"}),
     _scenario("page", "identity", "loglik", "iterate", "failed_search", MOVED, page_probability=0.55),
     # TRPO (rllab's backtracking 0.8 x 15, here 0.8 x 3 so that the first trial is rejected).
     _scenario("full", "fisher", "ratio", "sampling", "all", {"accepted", "backtrack", "kl_rejection"},
@@ -497,6 +536,7 @@ def test_update_matches_reference(scenario: Scenario) -> None:
     counters = (stats.inner_steps_attempted, stats.inner_steps_accepted, stats.backtracks,
                 stats.stopped_early)
     assert counters == (trace.attempted, trace.accepted, trace.backtracks, trace.stopped_early)
+    assert stats.budget_rejections == trace.outside_budget
     assert stats.surrogate_improvement == pytest.approx(reference.surrogate_improvement, rel=0, abs=1e-12)
     assert stats.mean_kl == pytest.approx(reference.mean_kl, rel=0, abs=1e-12)
     assert (stats.skipped_curvature, stats.skipped_nonfinite_gradient) == (0, 0)
@@ -513,6 +553,74 @@ def test_scenarios_cover_every_option_and_event() -> None:
     for name, values in options.items():
         assert {getattr(s.config, name) for s in SCENARIOS} == values, name
     assert set().union(*(s.expect for s in SCENARIOS)) == EVENTS
+
+
+def _accepted_points(config: Config, seed: int) -> tuple[list[torch.Tensor], torch.Tensor, Rows, UpdateStats]:
+    """update_policy on a scenario-style w~ and batch, recording every accepted inner iterate."""
+    policy = entry_policy(seed)
+    start = flat_parameters(policy)
+    rows = sampled_rows(start, seed + 1)
+    accepted: list[torch.Tensor] = []
+    parts = update_parts(config)
+
+    def recording_search(**arguments: Any) -> Any:
+        result = backtracking_line_search(**arguments)
+        if result.accepted:
+            accepted.append(flat_parameters(policy))
+        return result
+
+    recording = dataclasses.replace(parts, line_search=recording_search)
+    stats = update_policy(policy, surrogate_batch(rows), recording, torch.Generator().manual_seed(seed + 2),
+                          torch.Generator().manual_seed(seed + 3))
+    return [start, *accepted], start, rows, stats
+
+
+@pytest.mark.parametrize("kl_step", [0.03, 0.04, None])
+def test_budgeted_anchor_keeps_every_iterate_inside_both_bounds(kl_step: float | None) -> None:
+    """No accepted iterate is farther than the budget from pi_old, and no step farther than the
+    per-step radius from the iterate it left, on a batch where the budget binds (trials were
+    rejected for it)."""
+    config = make_config(kl_anchor="budgeted", kl_step=kl_step, estimator="sarah", inner_stop="all")
+    points, start, rows, stats = _accepted_points(config, seed=0)
+    step = kl_step if kl_step is not None else config.max_kl / config.inner_steps**1.5
+    sampling = kl_from(rows.old_mean, rows.old_log_std, rows.observations)
+    assert len(points) >= 3
+    for before, after in itertools.pairwise(points):
+        assert sampling(after) <= config.max_kl
+        from_iterate = kl_from(*trust_region_anchor("iterate", before, rows), rows.observations)
+        assert from_iterate(after) <= step * (1 + 1e-9)
+    if kl_step is not None:
+        assert stats.budget_rejections > 0  # the bound bound
+
+
+def test_budgeted_anchor_with_one_step_is_trpo_bit_for_bit() -> None:
+    """budget = delta, J = 1 (the per-step radius then defaults to delta): TRPO's update."""
+    trpo = make_preset("trpo", "Hopper-v5", "laptop").replace(**{k: getattr(make_config(), k) for k in (
+        "batch_size", "total_steps", "hidden_sizes", "num_workers", "envs_per_worker",
+        "variance_probe_batches", "cg_iters", "cg_residual_tol", "cg_damping", "max_kl",
+        "backtrack_ratio", "max_backtracks")})
+    budgeted = trpo.replace(kl_anchor="budgeted")
+    results = []
+    for config in (trpo, budgeted):
+        points, _, _, stats = _accepted_points(config, seed=11)
+        results.append((points[-1], stats))
+    assert torch.equal(results[0][0], results[1][0]) and len(points) == 2
+    same = {k: a == b or (math.isnan(a) and math.isnan(b))
+            for (k, a), b in zip(vars(results[0][1]).items(), vars(results[1][1]).values(), strict=True)}
+    assert all(same.values()), same
+
+
+def test_budgeted_anchor_with_a_budget_that_never_binds_is_the_iterate_anchor() -> None:
+    """A per-step radius delta and a budget too large to bind: each step bounded around w_j only,
+    as kl_anchor iterate (the same steps to float tolerance: the first step's ball is centred on
+    pi_old, which equals pi_{w~} up to the forward pass's rounding)."""
+    iterate = make_config(kl_anchor="iterate", inner_stop="all")
+    loose = make_config(kl_anchor="budgeted", kl_step=iterate.max_kl, max_kl=1e6, inner_stop="all")
+    a, _, _, stats_a = _accepted_points(iterate, seed=3)
+    b, _, _, stats_b = _accepted_points(loose, seed=3)
+    assert len(a) == len(b) >= 3 and stats_b.budget_rejections == 0
+    for x, y in zip(a, b, strict=True):
+        torch.testing.assert_close(x, y, rtol=1e-9, atol=1e-12)
 
 
 def test_page_scenarios_take_both_kinds_of_step() -> None:
