@@ -18,7 +18,7 @@ from svrpo.arguments import CommandLineError, OneLineParser
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, field_names, make_preset
 from svrpo.errors import CheckpointError, EnvError, EvaluationError, SpecError
 from svrpo.errors import one_line as checkpoint_one_line
-from svrpo.run_files import RunDirectoryError, check_run_directory_path, claim_run_directory
+from svrpo.run_files import RunDirectoryError, check_claim, check_run_directory_path
 from svrpo.run_lock import LockedError, exclusive_writer
 
 if TYPE_CHECKING:
@@ -130,9 +130,9 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
 
 def _train_locked(args: argparse.Namespace, config: Config, preset: str, run_dir: Path) -> int:
     """_train once this process holds the run directory's writer lock."""
-    # The library's rule (training.train applies it too): refused here before anything is printed.
-    for note in claim_run_directory(run_dir, args.resume is not None, args.overwrite):
-        print(note, file=sys.stderr)
+    # The library's rule, applied (and the run's files cleared) by training.train: checked here
+    # too, so that a refusal comes before anything is printed.
+    check_claim(run_dir, args.resume is not None, args.overwrite)
     from svrpo.experiments.runner import raise_keyboard_interrupt
     from svrpo.training import RunRecord, TrainingError, train
 

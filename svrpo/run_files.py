@@ -88,6 +88,26 @@ def check_run_directory_path(path: Path) -> None:
                                 "empty directory (overwriting only replaces runs); nothing was touched")
 
 
+def check_claim(path: Path, resume: bool, overwrite: bool) -> None:
+    """RunDirectoryError (nothing touched) unless claim_run_directory(path, resume, overwrite)
+    would succeed. Deletes nothing: a front end calls it to refuse before it prints anything."""
+    if resume and overwrite:
+        raise RunDirectoryError("resume and overwrite exclude each other: resuming keeps the run, "
+                                "overwriting replaces it")
+    if resume:
+        if not is_run_directory(path):
+            raise RunDirectoryError(f"cannot resume {path}: it holds no config.json (not a run directory)")
+        return
+    if not holds_anything(path):
+        return
+    check_run_directory_path(path)
+    if not overwrite:
+        raise RunDirectoryError(
+            f"{path} already holds a run: continue it (svrpo train --resume {path}, or "
+            "svrpo.train(..., resume=True)) or replace it (--overwrite, or overwrite=True); "
+            "nothing was touched")
+
+
 def claim_run_directory(path: Path, resume: bool, overwrite: bool) -> list[str]:
     """Make `path` ready for a run; the notes to show. Call it holding the writer lock.
 
@@ -95,21 +115,9 @@ def claim_run_directory(path: Path, resume: bool, overwrite: bool) -> list[str]:
     directory is used as it is; one that holds a run is refused (RunDirectoryError, nothing
     touched) unless `overwrite`, which clears the files a run writes and keeps the user's own.
     """
-    if resume and overwrite:
-        raise RunDirectoryError("resume and overwrite exclude each other: resuming keeps the run, "
-                                "overwriting replaces it")
-    if resume:
-        if not is_run_directory(path):
-            raise RunDirectoryError(f"cannot resume {path}: it holds no config.json (not a run directory)")
+    check_claim(path, resume, overwrite)
+    if resume or not holds_anything(path):
         return []
-    if not holds_anything(path):
-        return []
-    check_run_directory_path(path)
-    if not overwrite:
-        raise RunDirectoryError(
-            f"{path} already holds a run: continue it (svrpo train --resume {path}, or "
-            "svrpo.train(..., resume=True)) or replace it (--overwrite, or overwrite=True); "
-            "nothing was touched")
     kept = clear_run(path)
     if not kept:
         return []

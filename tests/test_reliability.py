@@ -63,8 +63,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 def _cli_args(out: Path, **changes: Any) -> list[str]:
     """`svrpo train` arguments that build exactly CONFIG (with `changes`), writing to out."""
-    args = ["train", "--preset", "svrpo", "--env", ENV, "--steps", str(CONFIG.total_steps), "--seed", "0",
-            "--out", str(out), "--no-progress"]
+    args = ["train", "--preset", "svrpo", "--env", ENV, "--scale", "laptop",
+            "--steps", str(CONFIG.total_steps), "--seed", "0", "--out", str(out), "--no-progress"]
     for name, value in {**OVERRIDES, **changes}.items():
         args += [f"--{name}", str(value).lower() if isinstance(value, bool) else str(value)]
     return args
@@ -386,6 +386,7 @@ def test_resume_of_a_damaged_run_directory_is_one_line(tmp_path: Path,
 _VALID = json.loads(make_preset("svrpo", "Hopper-v5", "laptop").to_json())
 _FIELD_TYPES: dict[str, type | tuple[type, ...]] = {name: type(value) for name, value in _VALID.items()}
 _FIELD_TYPES["max_episode_steps"] = (int, type(None))  # None: the task's own time limit
+_FIELD_TYPES["kl_step"] = (float, type(None))  # None: derived from max_kl and inner_steps
 _json_values = st.recursive(
     st.none() | st.booleans() | st.integers(-10**20, 10**20) | st.floats() | st.text(max_size=10),
     lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=4), inner, max_size=2),
