@@ -112,6 +112,11 @@ class IterationResult:
     nonfinite_batches: int
     time_sampling: float
     time_update: float
+    cpu_learner: float
+    """CPU seconds of this process in the iteration (time.process_time: every thread)."""
+    cpu_workers: float
+    """CPU seconds of the sampling worker processes in the iteration (0 when sampling in-process;
+    a restart of the workers loses the dead ones' share)."""
     warnings: tuple[str, ...]
     """In the order they arose: sampler restarts, a refused or undone update, evaluation restarts."""
 
@@ -140,6 +145,9 @@ class IterationResult:
         row["time_sampling"] = self.time_sampling
         row["time_update"] = self.time_update
         row["steps_per_second"] = self.batch.num_steps / self.time_sampling
+        # CPU time, which other processes on the machine disturb far less than wall-clock.
+        row["cpu_learner"] = self.cpu_learner
+        row["cpu_workers"] = self.cpu_workers
         return row
 
 
@@ -147,7 +155,8 @@ def run_iteration(run: Run) -> IterationResult:
     """One outer iteration of Algorithm 1 (DESIGN.md's decisions); see the module docstring."""
     label = f"iteration {run.iteration + 1}"
     run.sampler.label = label
-    started = time.perf_counter()
+    started, cpu_started = time.perf_counter(), time.process_time()
+    workers_started = run.sampler.worker_cpu_seconds()
     batch = run.sampler.sample(snapshot_of(run), run.config.batch_size)  # N steps with w~
     sampled = time.perf_counter()
     warnings = run.sampler.take_warnings()
@@ -163,7 +172,8 @@ def run_iteration(run: Run) -> IterationResult:
         update=update, eval_return=eval_return, entropy=float(run.policy.entropy().detach()),
         action_std=float(run.policy.log_std.detach().exp().mean()),
         nonfinite_batches=run.nonfinite_batches, time_sampling=sampled - started,
-        time_update=updated - sampled,
+        time_update=updated - sampled, cpu_learner=time.process_time() - cpu_started,
+        cpu_workers=max(0.0, run.sampler.worker_cpu_seconds() - workers_started),
         warnings=(*warnings, *([update.warning] if update.warning else []), *run.sampler.take_warnings()),
     )
 

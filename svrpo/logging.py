@@ -15,7 +15,8 @@ from tqdm import tqdm
 from svrpo.atomic import write_text_atomic
 
 # Columns that depend on the machine, not on the seed: left out of determinism checks.
-WALL_CLOCK_COLUMNS = ("wall_time", "time_sampling", "time_update", "steps_per_second")
+WALL_CLOCK_COLUMNS = ("wall_time", "time_sampling", "time_update", "steps_per_second", "cpu_learner",
+                      "cpu_workers")
 
 
 def truncate_progress(path: Path, keep_iterations: int) -> list[int]:

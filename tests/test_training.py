@@ -78,6 +78,31 @@ def test_same_seed_same_progress(tmp_path: Path) -> None:
     assert without_clock(progress_rows(tmp_path / "c")) != without_clock(a)
 
 
+def test_rows_record_the_cpu_time_of_the_learner_and_of_the_workers(tmp_path: Path) -> None:
+    """cpu_workers is the workers' own CPU (from the OS), 0 when sampling in-process."""
+    import os
+    import time
+
+    from svrpo.sampling.worker_process import process_cpu_seconds
+
+    before = time.process_time()
+    spent = process_cpu_seconds(os.getpid())
+    while time.process_time() - before < 0.3:  # burn CPU in this process
+        pass
+    assert process_cpu_seconds(os.getpid()) - spent == pytest.approx(time.process_time() - before, abs=0.05)
+    assert process_cpu_seconds(2**22 + 1) == 0.0  # no such process
+    for workers in (1, 0):
+        train(_small("trpo", num_workers=workers), tmp_path / str(workers), show_progress=False)
+        rows = progress_rows(tmp_path / str(workers))
+        learner = [float(r["cpu_learner"]) for r in rows]
+        sampling = [float(r["cpu_workers"]) for r in rows]
+        assert all(0 < t <= 4 * float(r["wall_time"]) for t, r in zip(learner, rows, strict=True))
+        if workers:
+            assert sum(sampling) > 0
+        else:
+            assert sampling == [0.0] * len(rows)
+
+
 def test_resume_continues_identically(tmp_path: Path) -> None:
     """A run stopped after iteration 2 and resumed ends with the same rows as an unbroken one."""
     full = _small("svrpo", total_steps=4000, num_workers=2)

@@ -70,6 +70,10 @@ class RestartingSampler:
         self._sampler.set_state(state)
         self._state = state
 
+    def worker_cpu_seconds(self) -> float:
+        """CPU seconds used so far by the current workers (a restarted set starts from 0)."""
+        return self._sampler.worker_cpu_seconds()
+
     def close(self) -> None:
         self._sampler.close()
 

@@ -141,6 +141,11 @@ class Sampler:
             self.close()
             raise
 
+    def worker_cpu_seconds(self) -> float:
+        """CPU seconds the live worker processes have used so far (0.0 when sampling in-process:
+        that time is the learner's own process time)."""
+        return sum(proc.cpu_seconds() for proc in self._procs)
+
     @property
     def num_envs(self) -> int:
         """W * E (E when sampling in-process)."""

@@ -13,12 +13,24 @@ Torch-free, like every module the worker imports (svrpo/sampling/__init__.py).
 from __future__ import annotations
 
 import contextlib
+import os
 import socket
 import subprocess
 import sys
 from collections.abc import Mapping
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any
+
+
+def process_cpu_seconds(pid: int) -> float:
+    """utime + stime of process `pid` from /proc/PID/stat, in seconds; 0.0 if unreadable."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return 0.0
+    fields = stat[stat.rindex(")") + 2 :].split()  # after "(comm)", which may hold spaces
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # fields 14, 15 of stat
 
 
 class WorkerProcess:
@@ -41,6 +53,11 @@ class WorkerProcess:
     @property
     def pid(self) -> int:
         return self._popen.pid
+
+    def cpu_seconds(self) -> float:
+        """User + system CPU seconds this worker has used so far (Linux /proc; 0.0 where it
+        cannot be read: another OS, or the process already gone)."""
+        return process_cpu_seconds(self._popen.pid)
 
     @property
     def exitcode(self) -> int | None:
