@@ -161,6 +161,27 @@ def test_sigterm_stops_a_ray_sweep_and_its_runs_with_a_checkpoint(
     assert 2 <= len(progress_rows(run_dir, complete_only=True)) < 200
 
 
+@pytest.mark.skipif(not Path("/proc/self/status").is_file(), reason="reads signal masks from /proc")
+def test_a_run_started_with_sigint_blocked_unblocks_it(tmp_path: Path) -> None:
+    """Ray runs tasks on a thread with SIGINT blocked, and a process inherits its parent
+    thread's signal mask: unless the run unblocks SIGINT, the task's stop never arrives."""
+    probe = ("import sys\n"
+             "if sys.argv[1] == 'unblock':\n"
+             "    from svrpo.experiments.runner import accept_stop_signals; accept_stop_signals()\n"
+             "mask = next(l for l in open('/proc/self/status') if l.startswith('SigBlk:'))\n"
+             "print(int(mask.split()[1], 16))\n")
+
+    def blocked_in_child(mode: str) -> set[signal.Signals]:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})  # this helper thread only
+        out = subprocess.run([sys.executable, "-c", probe, mode], capture_output=True, text=True,
+                             check=True).stdout
+        return {sig for sig in (signal.SIGINT, signal.SIGTERM) if int(out) >> (sig - 1) & 1}
+
+    with ThreadPoolExecutor(1) as pool:
+        assert pool.submit(blocked_in_child, "keep").result() == {signal.SIGINT}  # as under Ray
+        assert pool.submit(blocked_in_child, "unblock").result() == set()
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [

@@ -64,7 +64,8 @@ def run_task(run_dir: str) -> tuple[int, float, str]:
     with open(path / "train.log", "ab") as log:
         command = [sys.executable, "-m", "svrpo.experiments.ray_task", run_dir, str(os.getpid())]
         # Its own session: a signal to the worker's process group does not reach the run; this
-        # task forwards the one stop signal it should get.
+        # task forwards the one stop signal it should get. The run inherits this thread's signal
+        # mask, SIGINT blocked by Ray: runner.main unblocks it (accept_stop_signals).
         process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
                                    stdin=subprocess.DEVNULL, start_new_session=True)
         log.write(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} svrpo sweep: start or resume "

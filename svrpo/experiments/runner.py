@@ -19,6 +19,17 @@ def raise_keyboard_interrupt(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt
 
 
+def accept_stop_signals() -> None:
+    """Unblock SIGINT and SIGTERM in this thread: a blocked signal stays pending, never handled.
+
+    The signal mask is inherited through fork and exec. Ray (2.60) runs its tasks on a thread
+    with SIGINT blocked, so a training process started by a Ray task (ray_task.py) began with
+    SIGINT blocked: the task's stop (SIGINT, on ray.cancel) stayed pending and the run trained on.
+    """
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+
+
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 1:
@@ -29,6 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, raise_keyboard_interrupt)
     try:
+        accept_stop_signals()  # in the try: a stop already pending (blocked until now) lands here
         result = execute(Path(args[0]))
     except KeyboardInterrupt:
         return 130
