@@ -8,7 +8,7 @@ svrpo.allocator.keep_freed_memory ("keep", what training does), alternately:
    (Hopper-v5, paper preset, m = N/10, J = 50, one torch thread), with the number of calls of
    each part, so per-call cost and call counts can be told apart.
 2. The hot kernels alone, per row, with the process's minor page faults per call: the line
-   search's trial (one forward pass, surrogate and KL: `update._FullBatchEvaluator`) and one
+   search's trial (one forward pass, surrogate and KL: `update.FullBatchEvaluator`) and one
    forward + backward of the surrogate, on n = 5,000 ... 200,000 rows. A per-row cost that rises
    with n means the kernel itself gets dearer per sample, not that more work is done.
 
@@ -66,7 +66,7 @@ def kernel_costs(repeats: int) -> dict[str, Any]:
 
     from svrpo.objectives import SurrogateBatch
     from svrpo.policy import GaussianMlpPolicy
-    from svrpo.update import _FullBatchEvaluator
+    from svrpo.update import FullBatchEvaluator
 
     torch.set_num_threads(1)
     generator = torch.Generator().manual_seed(0)
@@ -89,7 +89,7 @@ def kernel_costs(repeats: int) -> dict[str, Any]:
         for rows in KERNEL_ROWS:
             batch = SurrogateBatch(observations[:rows], actions[:rows], advantages[:rows], old[:rows],
                                    old_mean[:rows], anchor_log_std)
-            evaluator = _FullBatchEvaluator(policy, batch, "ratio")
+            evaluator = FullBatchEvaluator(policy, batch, "ratio")
             with torch.no_grad():
                 anchor_mean = evaluator.mean()
             evaluate = evaluator.objective_and_kl(anchor_mean, anchor_log_std.expand_as(anchor_mean))

@@ -5,7 +5,7 @@ Pieces, at Hopper's sizes with a (64, 64) policy, torch on 1 thread (the config 
   double-backward product (`autograd_fisher_vector_product`, still the fallback) against the
   closed form J^T P J v (`fisher_vector_product`); setup and one product each.
 * One line-search trial on N = 50,000 rows: the old evaluation (surrogate and KL through two
-  torch forward passes) against the new one (one values-only pass, update._FullBatchEvaluator).
+  torch forward passes) against the new one (one values-only pass, update.FullBatchEvaluator).
 * tanh on a 50,000 x 64 float32 tensor: torch against NumPy.
 Each figure: median over `--repeats` of (median of `--inner` calls); ratio = before / after.
 
@@ -32,7 +32,7 @@ from svrpo.bench import machine_info  # noqa: E402
 from svrpo.objectives import SurrogateBatch, mean_kl_from, old_log_prob, surrogate  # noqa: E402
 from svrpo.policy import GaussianMlpPolicy  # noqa: E402
 from svrpo.trust_region.metrics import autograd_fisher_vector_product, fisher_vector_product  # noqa: E402
-from svrpo.update import _FullBatchEvaluator  # noqa: E402
+from svrpo.update import FullBatchEvaluator  # noqa: E402
 
 
 def _seconds(function: Callable[[], Any], inner: int) -> float:
@@ -84,7 +84,7 @@ def main() -> None:
             return (float(surrogate(policy, batch, "ratio")),
                     float(mean_kl_from(mean, anchor_log_std, policy, observations)))
 
-    new_trial = _FullBatchEvaluator(policy, batch, "ratio").objective_and_kl(mean, anchor_log_std)
+    new_trial = FullBatchEvaluator(policy, batch, "ratio").objective_and_kl(mean, anchor_log_std)
     pieces: dict[str, tuple[Callable[[], Any], Callable[[], Any]]] = {}
     for rows in (5_000, 50_000):
         subset = observations[:rows]

@@ -76,6 +76,10 @@ def generalized_advantages(
     return advantages.to(rewards.dtype)
 
 
-def standardize(values: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
+STANDARDIZE_EPS = 1e-8
+"""Added to the standard deviation when standardising advantages."""
+
+
+def standardize(values: torch.Tensor, eps: float = STANDARDIZE_EPS) -> torch.Tensor:
     """(x - mean) / (std + eps) over the whole tensor."""
     return (values - values.mean()) / (values.std(unbiased=False) + eps)

@@ -12,6 +12,7 @@ replaced by RestartingSampler, so the batch is the one an undisturbed run would 
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -20,10 +21,12 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
-from svrpo.advantages import generalized_advantages, standardize
+from svrpo.advantages import STANDARDIZE_EPS, generalized_advantages, standardize
 from svrpo.baselines import explained_variance
+from svrpo.fresh.loop import update_policy_fresh
 from svrpo.objectives import SurrogateBatch, old_log_prob
 from svrpo.parameters import nonfinite_tensors
+from svrpo.policy import GaussianMlpPolicy
 from svrpo.run import Run, build_run, make_sampler
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.sampler import Batch
@@ -54,6 +57,42 @@ def surrogate_batch(run: Run, batch: Batch) -> PreparedBatch:
     The baseline's values are those it predicts now, in the coordinates it was fitted in (the
     observation normaliser does not change between a fit and the next prediction).
     """
+    inputs, advantages, values = _raw_advantages(run, batch)
+    targets = advantages + values
+    if run.config.normalize_advantages:
+        advantages = standardize(advantages)
+    log_prob, mean, log_std = old_log_prob(run.policy, inputs, batch.actions)
+    data = SurrogateBatch(inputs, batch.actions, advantages, log_prob, mean, log_std)
+    return PreparedBatch(data, targets, values)
+
+
+def advantage_scale(run: Run, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]:
+    """(mean, standard deviation) of the batch's advantages before standardising: the scale
+    surrogate_batch standardises it with."""
+    advantages = _raw_advantages(run, batch)[1]
+    return advantages.mean(), advantages.std(unbiased=False)
+
+
+def fresh_surrogate_batch(run: Run, batch: Batch, scale: tuple[torch.Tensor, torch.Tensor],
+                          sampling_policy: GaussianMlpPolicy) -> PreparedBatch:
+    """A fresh batch drawn with the inner iterate w_j (run.policy now) made ready for the
+    fresh-sample loop (svrpo/fresh/gradients.py): advantages from the current baseline,
+    standardised with the snapshot batch's mean and standard deviation (the scale g~ was computed
+    on, so that the estimators' corrections and g~ agree), log pi_{w_j}(a|s) as old_log_prob (the
+    importance ratios' denominator) and the sampling policy pi_{w~}'s means as old_mean (the
+    anchor of the iteration's KL budget)."""
+    inputs, advantages, values = _raw_advantages(run, batch)
+    targets = advantages + values
+    if run.config.normalize_advantages:
+        advantages = (advantages - scale[0]) / (scale[1] + STANDARDIZE_EPS)
+    log_prob = old_log_prob(run.policy, inputs, batch.actions)[0]
+    _, sampling_mean, sampling_log_std = old_log_prob(sampling_policy, inputs, batch.actions)
+    data = SurrogateBatch(inputs, batch.actions, advantages, log_prob, sampling_mean, sampling_log_std)
+    return PreparedBatch(data, targets, values)
+
+
+def _raw_advantages(run: Run, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(policy inputs, GAE advantages before standardising, V(s_t)) with the current baseline."""
     config = run.config
     inputs = _policy_inputs(run, batch.observations)
     values = run.baseline.predict(inputs, batch.timesteps)
@@ -69,12 +108,7 @@ def surrogate_batch(run: Run, batch: Batch) -> PreparedBatch:
     advantages = generalized_advantages(
         batch.rewards, values, next_values, batch.terminated, episode_end, config.gamma, config.gae_lambda
     )
-    targets = advantages + values
-    if config.normalize_advantages:
-        advantages = standardize(advantages)
-    log_prob, mean, log_std = old_log_prob(run.policy, inputs, batch.actions)
-    data = SurrogateBatch(inputs, batch.actions, advantages, log_prob, mean, log_std)
-    return PreparedBatch(data, targets, values)
+    return inputs, advantages, values
 
 
 def _nonfinite(named: dict[str, torch.Tensor]) -> list[str]:
@@ -95,6 +129,10 @@ class UpdateOutcome:
     explained_variance: float
     """Of the baseline values the advantages used (nan when the batch was refused)."""
     warning: str | None
+    fresh_batches: tuple[Batch, ...] = ()
+    """The batches a fresh-sample inner loop drew with the iterates w_j, in order."""
+    fresh_sampling_time: float = 0.0
+    """Seconds spent drawing them (part of the update's wall-clock otherwise)."""
 
 
 @dataclass(frozen=True)
@@ -105,6 +143,7 @@ class IterationResult:
     env_steps: int
     wall_time: float
     batch: Batch
+    """The N steps sampled with w~ (fresh steps drawn inside the loop: update.fresh_batches)."""
     update: UpdateOutcome
     eval_return: float
     entropy: float
@@ -122,7 +161,10 @@ class IterationResult:
 
     def progress_row(self) -> dict[str, Any]:
         """The progress.csv row (column order fixed: earlier runs' files stay comparable)."""
-        returns, stats = self.batch.episode_returns, self.update.stats
+        batches = (self.batch, *self.update.fresh_batches)
+        returns = np.concatenate([b.episode_returns for b in batches])
+        lengths = np.concatenate([b.episode_lengths for b in batches])
+        stats = self.update.stats
         row: dict[str, Any] = {
             "iteration": self.iteration,
             "env_steps": self.env_steps,
@@ -130,7 +172,7 @@ class IterationResult:
             "average_return": float(returns.mean()) if returns.size else math.nan,
             "eval_return": self.eval_return,
             "episodes": int(returns.size),
-            "episode_length": float(self.batch.episode_lengths.mean()) if returns.size else math.nan,
+            "episode_length": float(lengths.mean()) if returns.size else math.nan,
             "entropy": self.entropy,
             "action_std": self.action_std,
             "baseline_explained_variance": self.update.explained_variance,
@@ -142,9 +184,12 @@ class IterationResult:
         else:
             row.update(asdict(stats))
             row["accept_rate"] = stats.inner_steps_accepted / stats.inner_steps_attempted
+        # Which steps the iteration sampled: N with w~, and those drawn inside the inner loop.
+        row["snapshot_steps"] = self.batch.num_steps
+        row["fresh_steps"] = sum(b.num_steps for b in self.update.fresh_batches)
         row["time_sampling"] = self.time_sampling
         row["time_update"] = self.time_update
-        row["steps_per_second"] = self.batch.num_steps / self.time_sampling
+        row["steps_per_second"] = (row["snapshot_steps"] + row["fresh_steps"]) / self.time_sampling
         # CPU time, which other processes on the machine disturb far less than wall-clock.
         row["cpu_learner"] = self.cpu_learner
         row["cpu_workers"] = self.cpu_workers
@@ -164,15 +209,17 @@ def run_iteration(run: Run) -> IterationResult:
     update = update_and_refit(run, batch, prepared, label)  # g~, J inner steps, refit V
     updated = time.perf_counter()
     run.iteration += 1
-    run.env_steps += batch.num_steps
+    run.env_steps += batch.num_steps + sum(b.num_steps for b in update.fresh_batches)
     eval_return = evaluate_if_due(run)
     run.wall_time += time.perf_counter() - started
     return IterationResult(
         iteration=run.iteration, env_steps=run.env_steps, wall_time=run.wall_time, batch=batch,
         update=update, eval_return=eval_return, entropy=float(run.policy.entropy().detach()),
         action_std=float(run.policy.log_std.detach().exp().mean()),
-        nonfinite_batches=run.nonfinite_batches, time_sampling=sampled - started,
-        time_update=updated - sampled, cpu_learner=time.process_time() - cpu_started,
+        nonfinite_batches=run.nonfinite_batches,
+        time_sampling=sampled - started + update.fresh_sampling_time,
+        time_update=updated - sampled - update.fresh_sampling_time,
+        cpu_learner=time.process_time() - cpu_started,
         cpu_workers=max(0.0, run.sampler.worker_cpu_seconds() - workers_started),
         warnings=(*warnings, *([update.warning] if update.warning else []), *run.sampler.take_warnings()),
     )
@@ -195,22 +242,46 @@ def update_and_refit(run: Run, batch: Batch, prepared: PreparedBatch, label: str
         return UpdateOutcome(None, math.nan, f"warning: {label}: non-finite {', '.join(bad_data)} "
                                              "in the batch; update skipped, parameters kept")
     before = run.learned_state()
-    stats = update_policy(run.policy, data, run.parts, run.generator, run.probe_generator)
+    fresh: list[tuple[Batch, torch.Tensor]] = []  # (fresh batch, its value targets)
+    fresh_sampling_time = 0.0
+    if run.config.fresh_samples:
+        sampling_policy, scale = copy.deepcopy(run.policy), advantage_scale(run, batch)
+
+        def draw_fresh() -> SurrogateBatch:
+            nonlocal fresh_sampling_time
+            started = time.perf_counter()
+            drawn = run.sampler.sample(snapshot_of(run), run.config.minibatch_size)  # B steps with w_j
+            fresh_sampling_time += time.perf_counter() - started
+            prepared_fresh = fresh_surrogate_batch(run, drawn, scale, sampling_policy)
+            fresh.append((drawn, prepared_fresh.targets))
+            return prepared_fresh.data
+
+        stats = update_policy_fresh(run.policy, data, run.parts, run.generator, draw_fresh)
+    else:
+        stats = update_policy(run.policy, data, run.parts, run.generator, run.probe_generator)
     explained = explained_variance(values, targets)  # of the values the advantages used
+    # The normaliser and the critic learn from every step sampled in the iteration: the
+    # snapshot batch, then the fresh batches in the order they were drawn, in one update/fit
+    # (the fresh steps' targets come from the critic before this fit, as the snapshot's do).
+    observations = torch.cat([batch.observations, *(b.observations for b, _ in fresh)])
+    timesteps = torch.cat([batch.timesteps, *(b.timesteps for b, _ in fresh)])
+    all_targets = torch.cat([targets, *(t for _, t in fresh)])
     if run.normalizer is not None:
-        run.normalizer.update(batch.observations)
+        run.normalizer.update(observations)
     # Refit after the update (rllab order), in the coordinates of the next prediction: the
     # normaliser's new statistics, which stay fixed until the next fit.
-    run.baseline.fit(_policy_inputs(run, batch.observations), batch.timesteps, targets)
+    run.baseline.fit(_policy_inputs(run, observations), timesteps, all_targets)
     # update_policy guards its own steps; this catches whatever slips through (and the
     # baseline's and normaliser's updates), undoing the whole update rather than patching it.
     broken = _nonfinite_learned_state(run)
+    drawn = tuple(b for b, _ in fresh)
     if not broken:
-        return UpdateOutcome(stats, explained, None)
+        return UpdateOutcome(stats, explained, None, drawn, fresh_sampling_time)
     run.load_learned_state(before)
     run.nonfinite_batches += 1
     return UpdateOutcome(stats, explained, f"warning: {label}: the update made the {', '.join(broken)} "
-                                           "non-finite; restored the parameters from before it")
+                                           "non-finite; restored the parameters from before it",
+                         drawn, fresh_sampling_time)
 
 
 def evaluate_if_due(run: Run) -> float:

@@ -115,9 +115,10 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
     from svrpo.sampling.envs import env_info
 
     env_info(config.env_id, config.max_episode_steps)  # fail before anything is written
-    if config.total_steps % config.batch_size:
-        print(f"note: total_steps is not a multiple of batch_size; running {config.iterations} "
-              f"iterations = {config.iterations * config.batch_size} steps", file=sys.stderr)
+    if config.total_steps % config.steps_per_iteration:
+        what = "batch_size" if not config.fresh_samples else "the steps of an iteration, N + (J - 1) m,"
+        print(f"note: total_steps is not a multiple of {what}; running {config.iterations} "
+              f"iterations = {config.iterations * config.steps_per_iteration} steps", file=sys.stderr)
     if args.resume is None:
         check_run_directory_path(run_dir)  # a file or a foreign directory: before the lock is made
     with contextlib.ExitStack() as held:

@@ -14,7 +14,11 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
-Estimator = Literal["full", "sgd", "svrg", "sarah", "storm", "page"]
+Estimator = Literal["full", "sgd", "svrg", "sarah", "storm", "page",
+                    "svrpg", "srvrpg", "stormpg", "fresh_sgd"]
+FRESH_ESTIMATORS: tuple[str, ...] = ("svrpg", "srvrpg", "stormpg", "fresh_sgd")
+"""The estimators whose inner steps j >= 1 draw m fresh steps with w_j (svrpo/fresh/): an
+iteration then samples N + (J - 1) m steps (Config.steps_per_iteration)."""
 Metric = Literal["fisher", "identity"]
 Surrogate = Literal["ratio", "loglik"]
 KlAnchor = Literal["sampling", "iterate", "budgeted"]
@@ -46,13 +50,25 @@ class Config:
     `sgd` (mean_I grad U_t(w), the paper's Fig. 2 ablation), `full` (grad U(w) on all N: TRPO),
     `sarah` (v_0 = g~, v_j = v_{j-1} + mean_I(grad U_t(w_j) - grad U_t(w_{j-1}))) or `storm`
     (d_0 = g~, d_j = mean_I grad U_t(w_j) + (1 - a)(d_{j-1} - mean_I grad U_t(w_{j-1}))) or `page`
-    (v_0 = g~; v_j = grad U(w_j) on all N rows with probability p, else the sarah step)."""
+    (v_0 = g~; v_j = grad U(w_j) on all N rows with probability p, else the sarah step).
+    The fresh-sample estimators draw new steps with w_j at every inner step j >= 1 and correct
+    with importance weights omega_t = pi_{w'}(a_t|s_t) / pi_{w_j}(a_t|s_t) (svrpo/fresh/):
+    `svrpg` (v_j = g~ + mean_B[grad l_t(w_j) - omega_t grad l_t(w~)], Papini et al. 2018),
+    `srvrpg` (v_j = v_{j-1} + mean_B[grad l_t(w_j) - omega_t grad l_t(w_{j-1})], Xu et al. 2020),
+    `stormpg` (v_j = a grad l(w_j) + (1 - a)[v_{j-1} + grad l(w_j) - omega grad l(w_{j-1})],
+    STORM-PG / IS-MBPG) and `fresh_sgd` (v_j = mean_B grad l_t(w_j): their ablation without a
+    control variate); l_t(w) = log pi_w(a_t|s_t) A_t."""
     minibatch_size: int = 1_000
-    """m: samples per inner-step mini-batch (ignored by `full`)."""
+    """m: samples per inner-step mini-batch (ignored by `full`). For the fresh-sample estimators,
+    B: the steps drawn with w_j at each inner step j >= 1 (step 0 uses g~ on the N steps)."""
     inner_steps: int = 10
     """J: inner steps per outer iteration (1 for `full`)."""
     storm_momentum: float = 0.1
-    """a in (0, 1]: STORM's momentum (estimator `storm` only; a = 1 is plain SGD, a -> 0 SARAH)."""
+    """a in (0, 1]: STORM's momentum (estimators `storm` and `stormpg`; a = 1 is plain SGD, a -> 0
+    SARAH)."""
+    importance_weight_clip: float | None = None
+    """Truncation c of the fresh-sample estimators' per-decision importance weights:
+    omega_t <- min(omega_t, c) (None: untruncated, unbiased). Ignored by the other estimators."""
     page_probability: float = 0.2
     """p in (0, 1]: PAGE's chance of a full-batch gradient at an inner step (estimator `page` only;
     p = 1 is the full gradient at every step, p -> 0 SARAH). 0.2 = m / (m + N) at the modern scale
@@ -151,9 +167,21 @@ class Config:
     """Write a checkpoint every this many iterations (and always at the end)."""
 
     @property
+    def fresh_samples(self) -> bool:
+        """Whether the inner steps draw fresh steps (a FRESH_ESTIMATORS estimator)."""
+        return self.estimator in FRESH_ESTIMATORS
+
+    @property
+    def steps_per_iteration(self) -> int:
+        """Environment steps an iteration samples when every inner step runs: N, plus (J - 1) m
+        fresh steps for a fresh-sample estimator (an inner loop that stops early samples fewer)."""
+        return self.batch_size + (self.inner_steps - 1) * self.minibatch_size * self.fresh_samples
+
+    @property
     def iterations(self) -> int:
-        """Outer iterations: total_steps // batch_size."""
-        return self.total_steps // self.batch_size
+        """Outer iterations: total_steps // steps_per_iteration (total_steps // N when the inner
+        loop reuses the batch)."""
+        return self.total_steps // self.steps_per_iteration
 
     def replace(self, **changes: Any) -> Config:
         """A validated copy with some fields changed."""
@@ -268,7 +296,8 @@ def validate(config: Config) -> Config:
     checks: list[tuple[bool, str]] = [
         (c.seed >= 0, "seed must be >= 0"),
         (c.batch_size >= 1, "batch_size (N) must be >= 1"),
-        (c.total_steps >= c.batch_size, "total_steps must be >= batch_size (N)"),
+        (c.total_steps >= c.steps_per_iteration,
+         "total_steps must be >= batch_size (N) (+ (J - 1) m with a fresh-sample estimator)"),
         (0 < c.max_kl < math.inf, "max_kl (delta) must be > 0 and finite"),
         (-20.0 <= c.init_log_std <= 20.0, "init_log_std must be in [-20, 20] (std = exp(init_log_std))"),
         (0 < c.fisher_subsample <= 1, "fisher_subsample (nu) must be in (0, 1]"),
@@ -281,6 +310,11 @@ def validate(config: Config) -> Config:
         (0 < c.storm_momentum <= 1, "storm_momentum (a) must be in (0, 1]"),
         (0 < c.page_probability <= 1, "page_probability (p) must be in (0, 1]"),
         (c.kl_step is None or 0 < c.kl_step < math.inf, "kl_step must be > 0 and finite (or none)"),
+        (c.importance_weight_clip is None or 1 <= c.importance_weight_clip < math.inf,
+         "importance_weight_clip must be >= 1 and finite (or none)"),
+        (not c.fresh_samples or c.minibatch_size >= max(c.num_workers, 1) * c.envs_per_worker,
+         "a fresh-sample estimator needs minibatch_size (B) >= num_workers * envs_per_worker "
+         "(every environment steps at least once per fresh draw)"),
         (c.cg_iters >= 1, "cg_iters must be >= 1"),
         (0 <= c.cg_damping < math.inf, "cg_damping must be >= 0 and finite"),
         (0 <= c.cg_residual_tol < math.inf, "cg_residual_tol must be >= 0 and finite"),
@@ -325,7 +359,7 @@ PAPER_INNER: dict[str, tuple[int, int, int]] = {
 _DEEP_TASKS = ("Ant", "Humanoid")
 
 PRESET_NAMES = ("trpo", "svrpo", "svrpo-loglik", "svrpo-sgd", "svrpo-identity", "svrpo-sarah",
-                "svrpo-storm", "svrpo-page", "svrpo-budgeted")
+                "svrpo-storm", "svrpo-page", "svrpo-budgeted", "svrpg", "srvrpg", "stormpg", "svrpg-sgd")
 SCALES: tuple[Scale, ...] = ("paper", "laptop", "modern")
 
 # The ablation field of each preset relative to `svrpo`.
@@ -338,7 +372,16 @@ _ABLATIONS: dict[str, dict[str, Any]] = {
     "svrpo-storm": {"estimator": "storm"},
     "svrpo-page": {"estimator": "page"},
     "svrpo-budgeted": {"kl_anchor": "budgeted"},
+    # Fresh samples in the inner loop (svrpo/fresh/): svrpo-budgeted with a fresh-sample
+    # estimator, one field from it: B = m fresh steps per inner step, each step bounded by
+    # kl_step around w_j and the iteration by max_kl from the sampling policy, on the fresh states.
+    "svrpg": {"kl_anchor": "budgeted", "estimator": "svrpg"},
+    "srvrpg": {"kl_anchor": "budgeted", "estimator": "srvrpg"},
+    "stormpg": {"kl_anchor": "budgeted", "estimator": "stormpg"},
+    "svrpg-sgd": {"kl_anchor": "budgeted", "estimator": "fresh_sgd"},
 }
+FRESH_PRESET_BASE = "svrpo-budgeted"
+"""The preset the fresh-sample presets differ from by the estimator alone."""
 
 
 def _task_family(env_id: str) -> str:

@@ -14,6 +14,9 @@ per inner step. All of them read the iteration's batch only, through `BatchGradi
 * `PageGradient`       v_0 = g~; v_j = grad U(w_j) on all N rows with probability p, else the
                        SARAH step (PAGE, Li et al. 2021; PAGE-PG, Gargiani et al. 2022).
 
+The fresh-sample estimators (svrpo/fresh/: SVRPG, SRVR-PG, STORM-PG, fresh SGD) are registered
+here too; their inner steps read fresh batches drawn with w_j, not mini-batches of this batch.
+
 `ESTIMATORS` maps each config value of `estimator` to the factory that builds its part; a new
 estimator is a class and one line there (plus its config value). A user's estimator is any
 object with the `GradientEstimator` methods (see docs/estimators.md).
@@ -29,6 +32,10 @@ from typing import Any, Protocol, runtime_checkable
 import torch
 
 from svrpo.config import Config, Surrogate
+from svrpo.fresh.sgd import FreshMinibatchGradient
+from svrpo.fresh.srvrpg import SrvrpgGradient
+from svrpo.fresh.stormpg import StormPgGradient
+from svrpo.fresh.svrpg import SvrpgGradient
 from svrpo.lifecycle import Part
 from svrpo.objectives import SurrogateBatch, surrogate
 from svrpo.parameters import flat_gradient, flat_parameters, set_flat_parameters
@@ -297,6 +304,11 @@ ESTIMATORS: dict[str, Callable[[Config, RandomStreams], GradientEstimator]] = {
     "sarah": lambda config, streams: SarahGradient(),
     "storm": lambda config, streams: StormGradient(config.storm_momentum),
     "page": lambda config, streams: PageGradient(config.page_probability, streams.generator("page")),
+    # Fresh samples in the inner loop (svrpo/fresh/; run by svrpo.fresh.loop).
+    "svrpg": lambda config, streams: SvrpgGradient(),
+    "srvrpg": lambda config, streams: SrvrpgGradient(),
+    "stormpg": lambda config, streams: StormPgGradient(config.storm_momentum),
+    "fresh_sgd": lambda config, streams: FreshMinibatchGradient(),
 }
 """config.estimator value -> (config, the run's random streams) -> the estimator part."""
 

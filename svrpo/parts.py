@@ -69,6 +69,8 @@ class InnerLoop:
     """U_t(w): ratio or loglik (a formula of objectives.py, not a part)."""
     variance_probe_batches: int
     """Probe mini-batches at the last inner iterate (0: off)."""
+    importance_weight_clip: float | None = None
+    """Truncation of the fresh-sample estimators' importance weights (None: none)."""
 
 
 @dataclass(frozen=True)
@@ -152,6 +154,7 @@ def update_parts(config: Config, estimator: GradientEstimator | None = None,
         fisher_subsample=config.fisher_subsample, cg_damping=config.cg_damping,
         backtrack_ratio=config.backtrack_ratio, max_backtracks=config.max_backtracks,
         surrogate=config.surrogate, variance_probe_batches=config.variance_probe_batches,
+        importance_weight_clip=config.importance_weight_clip,
     )
     return UpdateParts(
         loop=loop,

@@ -24,7 +24,8 @@ from svrpo.logging import read_progress
 
 # The same preset keeps its colour in every figure (the paper draws SVRPO red, TRPO blue).
 _COLOR_CYCLE = ("tab:blue", "tab:red", "tab:orange", "tab:green", "tab:purple", "tab:brown",
-                "tab:olive", "tab:cyan", "tab:pink", "tab:gray")
+                "tab:olive", "tab:cyan", "tab:pink", "tab:gray", "black", "gold", "navy", "magenta",
+                "teal", "lime")
 PRESET_COLORS = dict(zip(PRESET_NAMES, itertools.cycle(_COLOR_CYCLE), strict=False))
 """Each preset's colour in every figure, from the preset table's order (trpo blue, svrpo red, ...):
 a new preset gets the next colour of the cycle without an edit here."""

@@ -123,7 +123,8 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
             _restore_progress(progress, "")  # a fresh start: no rows of an earlier run
         notes = notes + (_resume(run, run_dir) if resume else [])
         write_config(run_dir, config)  # on resume only if it changed (e.g. more total_steps)
-        logger = RunLogger(run_dir, config.iterations * config.batch_size, run.env_steps, show_progress)
+        total = config.iterations * config.steps_per_iteration
+        logger = RunLogger(run_dir, total, run.env_steps, show_progress)
         for note in notes:
             logger.message(note)
         record_holder(run_dir)  # from here on this process writes the run

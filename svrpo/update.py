@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
@@ -20,6 +20,7 @@ from svrpo.parameters import flat_parameters, set_flat_parameters
 from svrpo.parts import UpdateParts
 from svrpo.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
 from svrpo.trust_region.anchors import KlBound
+from svrpo.trust_region.line_search import LineSearchResult
 from svrpo.trust_region.metrics import max_step_length
 
 
@@ -68,9 +69,57 @@ class UpdateStats:
     stopped_by_budget: int = 0
     """1 if the loop stopped early at a search that rejected a trial for the total budget: the
     iteration's KL budget was spent."""
+    fresh_steps: int = 0
+    """Environment steps drawn inside the inner loop with the iterates w_j (fresh-sample
+    estimators, svrpo/fresh/); 0 when the loop reuses the snapshot batch."""
 
 
-class _FullBatchEvaluator:
+@dataclass
+class InnerLoopTally:
+    """The counters of one update's inner steps, as the steps run (UpdateStats without the probe)."""
+
+    attempted: int = 0
+    accepted: int = 0
+    backtracks: int = 0
+    skipped_curvature: int = 0
+    skipped_gradient: int = 0
+    stopped_early: int = 0
+    stopped_by_budget: int = 0
+    budget_rejections: int = 0
+    expected: float = 0.0
+    cg_residuals: list[float] = field(default_factory=list)
+    cg_iterations: list[int] = field(default_factory=list)
+
+    def stats(self, surrogate_improvement: float, mean_kl: float, diagnostic: VarianceDiagnostic,
+              fresh_steps: int = 0) -> UpdateStats:
+        return UpdateStats(
+            inner_steps_attempted=self.attempted,
+            inner_steps_accepted=self.accepted,
+            stopped_early=self.stopped_early,
+            backtracks=self.backtracks,
+            skipped_curvature=self.skipped_curvature,
+            skipped_nonfinite_gradient=self.skipped_gradient,
+            surrogate_improvement=surrogate_improvement,
+            expected_improvement=self.expected,
+            mean_kl=mean_kl,
+            cg_residual=_mean(self.cg_residuals),
+            cg_iterations=_mean(self.cg_iterations),
+            svrg_variance=diagnostic.svrg_variance,
+            sgd_variance=diagnostic.sgd_variance,
+            variance_ratio=diagnostic.ratio,
+            estimator_error=diagnostic.estimator_error,
+            estimator_variance_ratio=diagnostic.estimator_ratio,
+            budget_rejections=self.budget_rejections,
+            stopped_by_budget=self.stopped_by_budget,
+            fresh_steps=fresh_steps,
+        )
+
+
+def _mean(values: list[float] | list[int]) -> float:
+    return sum(values) / len(values) if values else math.nan
+
+
+class FullBatchEvaluator:
     """U(w) and mean KL(anchor || pi_w) on the full batch at the policy's current w, from one
     forward pass of the network (values only, GaussianMlpPolicy.activations)."""
 
@@ -116,7 +165,7 @@ class _FullBatchEvaluator:
         return evaluate
 
 
-def _draw(count: int, size: int, generator: torch.Generator) -> torch.Tensor:
+def draw_rows(count: int, size: int, generator: torch.Generator) -> torch.Tensor:
     """`size` distinct row indices out of `count`, uniformly (all rows, in order, if size >= count)."""
     if size >= count:
         return torch.arange(count)
@@ -143,84 +192,96 @@ def update_policy(
     fisher_rows = max(1, int(round(loop.fisher_subsample * count)))
     minibatch_rows = loop.minibatch_size if estimator.uses_minibatches else count
 
-    full_batch = _FullBatchEvaluator(policy, batch, loop.surrogate)
+    full_batch = FullBatchEvaluator(policy, batch, loop.surrogate)
     start_objective = step_objective = full_batch.objective()
-    accepted = backtracks = skipped_curvature = skipped_gradient = 0
-    expected = 0.0
-    cg_residuals: list[float] = []
-    cg_iterations: list[int] = []
-    attempted = stopped_early = stopped_by_budget = 0
+    tally = InnerLoopTally()
 
     for step in range(loop.inner_steps):
-        attempted += 1
-        indices = _draw(count, minibatch_rows, generator)
-        fisher_indices = _draw(count, fisher_rows, generator)
+        tally.attempted += 1
+        indices = draw_rows(count, minibatch_rows, generator)
+        fisher_indices = draw_rows(count, fisher_rows, generator)
         gradient = estimator.estimate(indices)
-        if not torch.isfinite(gradient).all():
-            skipped_gradient += 1
+        step_result = trust_region_step(policy, batch, full_batch, gradient,
+                                        batch.observations[fisher_indices], parts, step_objective, tally)
+        if step_result is None:
             continue
-        fisher_product = parts.fisher_product(policy, batch.observations[fisher_indices], loop.cg_damping)
-        direction, cg = parts.metric.direction(gradient, fisher_product)
-        if cg is not None:
-            cg_residuals.append(cg.residual_norm_sq)
-            cg_iterations.append(cg.iterations)
-        bound = parts.kl_anchor.bound(batch, policy)  # this step's trust region
-        step_length = max_step_length(direction, fisher_product, bound.radius)
-        if step_length is None or not torch.isfinite(direction).all():
-            skipped_curvature += 1
-            continue
-
-        full_step = step_length * direction
-        rejections_before = full_batch.outside_further_balls
-        result = parts.line_search(
-            start=flat_parameters(policy),
-            full_step=full_step,
-            set_parameters=lambda flat: set_flat_parameters(policy, flat),
-            evaluate=full_batch.objective_and_kl(bound),
-            # U(w_j) is U at the last accepted point (or at w~): a rejected search restores the
-            # parameters exactly, so recomputing it would give the same number.
-            start_objective=step_objective,
-            max_kl=bound.radius,
-            ratio=loop.backtrack_ratio,
-            max_backtracks=loop.max_backtracks,
-        )
-        backtracks += result.backtracks
+        result, budget_rejected = step_result
         step_objective = result.objective
-        if result.accepted:
-            accepted += 1
-            expected += float(gradient.dot(full_step)) * result.step_fraction
         if parts.stopping_rule.stop(result.accepted) and step < loop.inner_steps - 1:
-            stopped_early = 1
-            stopped_by_budget = int(full_batch.outside_further_balls > rejections_before)
+            tally.stopped_early = 1
+            tally.stopped_by_budget = int(budget_rejected)
             break
 
     # The probe looks at the last inner iterate: the farthest the loop went from w~, where the
     # control variate is weakest. With no accepted step that is w~ itself (SVRG's variance is
     # exactly 0 there), which says nothing, so the probe is left out.
-    diagnostic = VarianceDiagnostic(math.nan, math.nan, math.nan)  # its ratios are nan too
-    if accepted and loop.variance_probe_batches > 0 and estimator.uses_minibatches:
-        probes = [_draw(count, minibatch_rows, probe_generator) for _ in range(loop.variance_probe_batches)]
+    diagnostic = NO_DIAGNOSTIC
+    if tally.accepted and loop.variance_probe_batches > 0 and estimator.uses_minibatches:
+        probes = [draw_rows(count, minibatch_rows, probe_generator)
+                  for _ in range(loop.variance_probe_batches)]
         diagnostic = parts.variance_probe(estimator, gradients, probes)
 
     old_log_std = batch.old_log_std.expand_as(batch.old_mean)
     final_kl = full_batch.kl(batch.old_mean, old_log_std)
-    return UpdateStats(
-        inner_steps_attempted=attempted,
-        inner_steps_accepted=accepted,
-        stopped_early=stopped_early,
-        backtracks=backtracks,
-        skipped_curvature=skipped_curvature,
-        skipped_nonfinite_gradient=skipped_gradient,
-        surrogate_improvement=step_objective - start_objective,
-        expected_improvement=expected,
-        mean_kl=final_kl,
-        cg_residual=sum(cg_residuals) / len(cg_residuals) if cg_residuals else math.nan,
-        cg_iterations=sum(cg_iterations) / len(cg_iterations) if cg_iterations else math.nan,
-        svrg_variance=diagnostic.svrg_variance,
-        sgd_variance=diagnostic.sgd_variance,
-        variance_ratio=diagnostic.ratio,
-        estimator_error=diagnostic.estimator_error,
-        estimator_variance_ratio=diagnostic.estimator_ratio,
-        budget_rejections=full_batch.outside_further_balls,
-        stopped_by_budget=stopped_by_budget,
+    return tally.stats(step_objective - start_objective, final_kl, diagnostic)
+
+
+NO_DIAGNOSTIC = VarianceDiagnostic(math.nan, math.nan, math.nan)
+"""The probe's result when it does not run (its ratios are nan too)."""
+
+
+def trust_region_step(
+    policy: GaussianMlpPolicy,
+    batch: SurrogateBatch,
+    evaluator: FullBatchEvaluator,
+    gradient: torch.Tensor,
+    fisher_observations: torch.Tensor,
+    parts: UpdateParts,
+    step_objective: float,
+    tally: InnerLoopTally,
+) -> tuple[LineSearchResult, bool] | None:
+    """One inner step from the policy's current w_j along the direction of `gradient`.
+
+    The metric turns the gradient into a direction (CG against the Fisher of
+    `fisher_observations` at w_j), the KL anchor gives this step's bound on `batch`, and the
+    line search backtracks from the quadratic model's step length, judged by `evaluator` (U and
+    KL on `batch`). None when the step is skipped (a non-finite gradient, or no usable
+    curvature); otherwise (the search's result, whether a trial left a further ball of the
+    bound, i.e. the budget). Every count goes to `tally`; the policy is moved in place.
+    """
+    loop = parts.loop
+    if not torch.isfinite(gradient).all():
+        tally.skipped_gradient += 1
+        return None
+    fisher_product = parts.fisher_product(policy, fisher_observations, loop.cg_damping)
+    direction, cg = parts.metric.direction(gradient, fisher_product)
+    if cg is not None:
+        tally.cg_residuals.append(cg.residual_norm_sq)
+        tally.cg_iterations.append(cg.iterations)
+    bound = parts.kl_anchor.bound(batch, policy)  # this step's trust region
+    step_length = max_step_length(direction, fisher_product, bound.radius)
+    if step_length is None or not torch.isfinite(direction).all():
+        tally.skipped_curvature += 1
+        return None
+
+    full_step = step_length * direction
+    rejections_before = evaluator.outside_further_balls
+    result = parts.line_search(
+        start=flat_parameters(policy),
+        full_step=full_step,
+        set_parameters=lambda flat: set_flat_parameters(policy, flat),
+        evaluate=evaluator.objective_and_kl(bound),
+        # U(w_j) is U at the last accepted point (or at w~): a rejected search restores the
+        # parameters exactly, so recomputing it would give the same number.
+        start_objective=step_objective,
+        max_kl=bound.radius,
+        ratio=loop.backtrack_ratio,
+        max_backtracks=loop.max_backtracks,
     )
+    tally.backtracks += result.backtracks
+    rejected = evaluator.outside_further_balls - rejections_before
+    tally.budget_rejections += rejected
+    if result.accepted:
+        tally.accepted += 1
+        tally.expected += float(gradient.dot(full_step)) * result.step_fraction
+    return result, rejected > 0

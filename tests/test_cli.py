@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from svrpo.config import PRESET_NAMES, Config
+from svrpo.config import PRESET_NAMES, Config, make_preset
 
 SMALL = ["--steps", "2000", "--batch_size", "1000", "--minibatch_size", "250", "--num_workers", "1",
          "--envs_per_worker", "2", "--eval_every", "1", "--eval_episodes", "1", "--no-progress"]
@@ -24,8 +24,10 @@ def svrpo(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
 @pytest.mark.parametrize("preset", PRESET_NAMES)
 def test_train_each_preset_writes_a_run(preset: str, tmp_path: Path) -> None:
     out = tmp_path / "run"
+    # A fresh-sample preset samples N + (J - 1) m per iteration: J = 2, two iterations.
+    fresh = ["--inner_steps", "2", "--steps", "2500"] if make_preset(preset).fresh_samples else []
     result = svrpo("train", "--preset", preset, "--env", "Hopper-v5", "--out", str(out), *SMALL,
-                   cwd=tmp_path)
+                   *fresh, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     assert "Results in" in result.stdout
     config = Config.from_json((out / "config.json").read_text())
@@ -33,11 +35,14 @@ def test_train_each_preset_writes_a_run(preset: str, tmp_path: Path) -> None:
     assert json.loads((out / "run.json").read_text())["preset"] == preset
     with open(out / "progress.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
-    assert [int(r["env_steps"]) for r in rows] == [1000, 2000]
+    drawn = [1000 + int(r["fresh_steps"]) for r in rows]
+    assert [int(r["env_steps"]) for r in rows] == [drawn[0], drawn[0] + drawn[1]]
+    assert all(r["fresh_steps"] in (["0"] if not fresh else ["0", "250"]) for r in rows)
     for column in ("average_return", "eval_return", "mean_kl", "accept_rate", "variance_ratio",
                    "cg_residual", "baseline_explained_variance", "time_sampling", "time_update"):
         assert column in rows[0]
-    assert float(rows[-1]["mean_kl"]) <= config.max_kl * (1 + 1e-6)
+    if not fresh:  # a fresh-sample loop bounds the KL on each step's fresh states, not on these
+        assert float(rows[-1]["mean_kl"]) <= config.max_kl * (1 + 1e-6)
     assert list((out / "tensorboard").iterdir()), "no TensorBoard events"
     assert list((out / "checkpoints").glob("iter_*.pt"))
 

@@ -43,7 +43,11 @@ def test_every_preset_builds_validates_and_round_trips(name: str, scale: str, en
     assert config.env_id == env_id
     assert Config.from_json(config.to_json()) == config
     assert Config.from_dict(json.loads(config.to_json())) == config
-    assert config.iterations * config.batch_size == config.total_steps
+    if config.fresh_samples:  # N + (J - 1) m per iteration: the last part-iteration is not run
+        left = config.total_steps - config.iterations * config.steps_per_iteration
+        assert 0 <= left < config.steps_per_iteration
+    else:
+        assert config.iterations * config.batch_size == config.total_steps
 
 
 KNOWN_ABLATIONS = {

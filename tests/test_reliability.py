@@ -23,6 +23,7 @@ import sys
 import tempfile
 import threading
 import time
+import typing
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -385,8 +386,11 @@ def test_resume_of_a_damaged_run_directory_is_one_line(tmp_path: Path,
 
 _VALID = json.loads(make_preset("svrpo", "Hopper-v5", "laptop").to_json())
 _FIELD_TYPES: dict[str, type | tuple[type, ...]] = {name: type(value) for name, value in _VALID.items()}
-_FIELD_TYPES["max_episode_steps"] = (int, type(None))  # None: the task's own time limit
-_FIELD_TYPES["kl_step"] = (float, type(None))  # None: derived from max_kl and inner_steps
+# Optional fields (None by default: the task's time limit, a derived kl_step, no truncation, ...)
+# take the number type of their hint, or None.
+_FIELD_TYPES.update({name: (typing.get_args(hint)[0], type(None))
+                     for name, hint in typing.get_type_hints(Config).items()
+                     if type(None) in typing.get_args(hint)})
 _json_values = st.recursive(
     st.none() | st.booleans() | st.integers(-10**20, 10**20) | st.floats() | st.text(max_size=10),
     lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=4), inner, max_size=2),

@@ -27,9 +27,10 @@ def _tiny(preset: str, **changes: Any) -> Config:
     """A few-second run on InvertedPendulum that still takes several inner steps per iteration."""
     base = make_preset(preset, "InvertedPendulum-v5", "laptop")
     inner = {} if base.estimator == "full" else {"minibatch_size": 50, "inner_steps": 3}
-    return base.replace(batch_size=200, total_steps=800, num_workers=0, envs_per_worker=2,
-                        hidden_sizes=(8, 8), eval_every=0, checkpoint_every=100,
-                        variance_probe_batches=2, **{**inner, **changes})
+    config = base.replace(batch_size=200, total_steps=800, num_workers=0, envs_per_worker=2,
+                          hidden_sizes=(8, 8), eval_every=0, checkpoint_every=100,
+                          variance_probe_batches=2, **{**inner, **changes})
+    return config.replace(total_steps=4 * config.steps_per_iteration)  # 4 iterations
 
 
 def _resume_cases() -> dict[str, Config]:

@@ -85,8 +85,10 @@ def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool 
     if dry_run:
         for job, state in zip(jobs, statuses, strict=True):
             copy = f", copy of {copies[job.run_dir]}" if job.run_dir in copies else ""
+            fresh = (f" + up to {job.config.steps_per_iteration - job.config.batch_size} fresh"
+                     if job.config.fresh_samples else "")
             print(f"{state.value:8s} {job.run_dir}  ({job.config.iterations} iterations x "
-                  f"N={job.config.batch_size}, {job.config.num_workers} workers{copy})")
+                  f"N={job.config.batch_size}{fresh}, {job.config.num_workers} workers{copy})")
         return SweepSummary(len(jobs), counts[RunStatus.DONE], 0, 0)
     if not todo:
         _say("nothing to run")

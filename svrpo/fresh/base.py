@@ -1,0 +1,71 @@
+"""What the fresh-sample estimators share: the part lifecycle and the recorded path.
+
+At the snapshot w~ (`start`) an estimator records (w~, g~), g~ the full surrogate gradient on
+the N snapshot steps; step 0 of the loop uses g~ itself. At every step j >= 1,
+`estimate_fresh(fresh)` combines the fresh batch's gradients with the record and, when the
+estimate is finite, records (w_j, v_j) as the previous point for the next step. The record is
+rebuilt at every outer iteration, so nothing is saved between iterations.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
+
+import torch
+
+from svrpo.fresh.gradients import FreshGradients
+from svrpo.lifecycle import Part
+
+if TYPE_CHECKING:
+    from svrpo.estimators import BatchGradients
+
+
+@runtime_checkable
+class FreshGradientEstimator(Protocol):
+    """An estimator whose inner steps j >= 1 read a fresh batch drawn with w_j."""
+
+    path_dependent: bool
+
+    def start(self, gradients: BatchGradients) -> None: ...
+
+    def estimate_fresh(self, fresh: FreshGradients) -> torch.Tensor: ...
+
+
+class FreshEstimator(Part):
+    """Base of the fresh-sample estimators. `uses_minibatches`, `estimate` and `peek` exist so
+    that the part has the GradientEstimator shape; the batch-reusing loop must not call them."""
+
+    uses_minibatches = True
+    path_dependent = True
+
+    def __init__(self) -> None:
+        self.snapshot_point: torch.Tensor | None = None
+        self.snapshot_gradient: torch.Tensor | None = None
+        self._previous: tuple[torch.Tensor, torch.Tensor] | None = None
+
+    def start(self, gradients: BatchGradients) -> None:
+        self.snapshot_point = gradients.current_point()  # w~ (the policy has not moved yet)
+        self.snapshot_gradient = gradients.snapshot_full
+        self._previous = (self.snapshot_point, self.snapshot_gradient)
+
+    @property
+    def previous(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(w_{j-1}, v_{j-1}): the last point with a finite estimate, and that estimate."""
+        if self._previous is None:
+            raise RuntimeError(f"{type(self).__name__}.start was not called at the snapshot")
+        return self._previous
+
+    def combine(self, fresh: FreshGradients) -> torch.Tensor:
+        raise NotImplementedError
+
+    def estimate_fresh(self, fresh: FreshGradients) -> torch.Tensor:
+        value = self.combine(fresh)
+        if bool(torch.isfinite(value).all()):
+            self._previous = (fresh.current_point(), value)
+        return value
+
+    def estimate(self, indices: torch.Tensor) -> torch.Tensor:
+        raise TypeError(f"{type(self).__name__} draws fresh samples: it runs in svrpo.fresh.loop, "
+                        "not on mini-batches of the snapshot batch")
+
+    peek = estimate
