@@ -67,3 +67,21 @@ def test_table_rows_give_the_t_interval_of_the_seeds_final_returns(tmp_path: Pat
     assert f"| T | trpo | 5 | 100 | 4.0 [{4.0 - half:.1f}, {4.0 + half:.1f}] |" in markdown
     assert "| T | svrpo | 1 | 100 | 8.0 | 1.0 |" in markdown
     assert "Student-t" in markdown
+
+
+def test_cpu_per_run_is_the_seed_median_of_summed_cpu_and_shown_when_recorded(tmp_path: Path) -> None:
+    """Three seeds spending 1+2+3, 2+2+2 and 10+0+5 CPU seconds over the T = 3 iterations the
+    table reads (a fourth iteration of seed 0 is past T): median of 6, 6, 15 = 6."""
+    returns = {"T": {"trpo": [_run("trpo", s, [0.0, 1.0, 2.0] + ([3.0] if s == 0 else []))
+                              for s in range(3)]}}
+    cpu = {"T": {"trpo": [_run("trpo", 0, [1.0, 2.0, 3.0, 100.0]), _run("trpo", 1, [2.0, 2.0, 2.0]),
+                          _run("trpo", 2, [10.0, 0.0, 5.0])]}}
+    [row] = summarize(returns, cpu=cpu)
+    assert row.iterations == 3 and row.cpu_seconds_per_run == 6.0
+    markdown = write_markdown([row], tmp_path / "table.md", "t").read_text()
+    assert "CPU time per run (median) |" in markdown and "| 6 s |" in markdown
+    # A run without the columns (NaN) makes the figure "not recorded", and the column vanishes.
+    cpu["T"]["trpo"][1] = _run("trpo", 1, [math.nan, math.nan, math.nan])
+    [row] = summarize(returns, cpu=cpu)
+    assert math.isnan(row.cpu_seconds_per_run)
+    assert "CPU" not in write_markdown([row], tmp_path / "old.md", "t").read_text()

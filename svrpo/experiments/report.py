@@ -3,6 +3,7 @@ panel and the table (markdown and CSV). Reads run directories only."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections import defaultdict
 from collections.abc import Sequence
@@ -70,7 +71,8 @@ def write_report(experiment: str, scale: str, run_dirs: Sequence[Path], out_dir:
                                        log_scale=True, title=title, reference=1.0))
     evals = _nested([load_curve(d, "eval_return") for d in run_dirs], experiment)
     wall = _nested([load_curve(d, "wall_time") for d in run_dirs], experiment)
-    rows = summarize(returns, variance, evals, wall)
+    cpu = _nested([_cpu_curve(d) for d in run_dirs], experiment)
+    rows = summarize(returns, variance, evals, wall, cpu)
     written.append(write_markdown(rows, out_dir / "table.md", f"{title}: final return and samples "
                                   "to reach TRPO's final return"))
     written.append(write_csv(rows, out_dir / "table.csv"))
@@ -78,6 +80,13 @@ def write_report(experiment: str, scale: str, run_dirs: Sequence[Path], out_dir:
     if summary is not None:
         written += write_aggregate(summary, out_dir, title)
     return written
+
+
+def _cpu_curve(run_dir: Path) -> RunCurve:
+    """CPU seconds per iteration: cpu_learner + cpu_workers (NaN where not recorded)."""
+    learner, workers = load_curve(run_dir, "cpu_learner"), load_curve(run_dir, "cpu_workers")
+    return dataclasses.replace(learner, values=learner.values.astype(np.float64)
+                               + workers.values.astype(np.float64))
 
 
 def _nested(curves: Sequence[RunCurve], experiment: str) -> Nested:

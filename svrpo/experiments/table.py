@@ -76,6 +76,9 @@ class TableRow:
     trpo_improved: bool = True
     """Whether TRPO's final mean return is above the untrained policy's (untrained_return over
     the task's runs); if not, every curve "reaches" it at once and the reach columns say so."""
+    cpu_seconds_per_run: float = math.nan
+    """Median over seeds of a run's CPU seconds over its T iterations (progress.csv's cpu_learner +
+    cpu_workers: the learner and its sampling workers, from the OS); NaN where not recorded."""
 
 
 def t_interval(values: np.ndarray | Sequence[float], confidence: float = CONFIDENCE) -> tuple[float, float]:
@@ -135,10 +138,11 @@ Curves = Mapping[str, Mapping[str, Sequence[RunCurve]]]
 
 
 def summarize(returns: Curves, variance: Curves | None = None, evals: Curves | None = None,
-              wall: Curves | None = None) -> list[TableRow]:
+              wall: Curves | None = None, cpu: Curves | None = None) -> list[TableRow]:
     """Table rows for `returns[task][preset]` (curves of average_return, one per seed); `evals`
     and `wall` (eval_return and wall_time curves of the same runs) add the final deterministic
-    evaluation and the wall-clock time to TRPO's final return."""
+    evaluation and the wall-clock time to TRPO's final return; `cpu` (per-iteration CPU seconds,
+    cpu_learner + cpu_workers) the CPU time per run."""
     rows = []
     for task, presets in returns.items():
         reference = presets.get(REFERENCE_PRESET)
@@ -161,6 +165,8 @@ def summarize(returns: Curves, variance: Curves | None = None, evals: Curves | N
             extra = {}
             if evals is not None:
                 extra.update(_final_eval(evals[task][preset]))
+            if cpu is not None:
+                extra["cpu_seconds_per_run"] = cpu_per_run(cpu[task][preset], curves.shape[1])
             if wall is not None:
                 seconds = first_reaching(_wall_curve(wall[task][preset], curves.shape[1]), seed_mean, target)
                 if math.isfinite(seconds):
@@ -175,6 +181,15 @@ def summarize(returns: Curves, variance: Curves | None = None, evals: Curves | N
                 median_variance_ratio=_median_ratio(ratios), **extra,
             ))
     return rows
+
+
+def cpu_per_run(runs: Sequence[RunCurve], length: int) -> float:
+    """Median over seeds of each run's summed per-iteration CPU seconds over its first `length`
+    iterations; NaN if any of those iterations has none recorded (a run older than the column,
+    or resumed from one)."""
+    totals = [float(np.sum(run.values[:length].astype(np.float64))) for run in runs]
+    totals = [total for total in totals if math.isfinite(total)]
+    return float(np.median(totals)) if totals and len(totals) == len(runs) else math.nan
 
 
 def _wall_curve(runs: Sequence[RunCurve], length: int) -> np.ndarray:
@@ -255,18 +270,27 @@ def wall_text(row: TableRow) -> str:
     return f"{row.percent_of_trpo_wall:.0f}% ({row.wall_to_trpo_final_s:,.0f} s)"
 
 
+def cpu_text(row: TableRow) -> str:
+    """'1,234 s' or 'not recorded'."""
+    return "not recorded" if math.isnan(row.cpu_seconds_per_run) else f"{row.cpu_seconds_per_run:,.0f} s"
+
+
 def write_markdown(rows: Sequence[TableRow], path: Path, title: str) -> Path:
-    """The table as markdown, with the definitions under it."""
+    """The table as markdown, with the definitions under it. The CPU column appears when some
+    run recorded CPU time (runs before it did not: their reports keep their columns)."""
+    with_cpu = any(math.isfinite(row.cpu_seconds_per_run) for row in rows)
     lines = [f"# {title}", "",
              "| task | preset | n (seeds) | steps | final return (95% CI) | "
              "final deterministic eval (95% CI) | samples to TRPO's final return (% of TRPO's) | "
-             "wall-clock to it (% of TRPO's) | median variance ratio |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "wall-clock to it (% of TRPO's) | median variance ratio |"
+             + (" CPU time per run (median) |" if with_cpu else ""),
+             "|---|---|---|---|---|---|---|---|---|" + ("---|" if with_cpu else "")]
     for row in rows:
         ratio = "" if math.isnan(row.median_variance_ratio) else f"{row.median_variance_ratio:.3g}"
         lines.append(f"| {row.task} | {row.preset} | {row.seeds} | {row.env_steps:,} | "
                      f"{final_text(row)} | {eval_text(row)} | "
-                     f"{reach_text(row)} | {wall_text(row)} | {ratio} |")
+                     f"{reach_text(row)} | {wall_text(row)} | {ratio} |"
+                     + (f" {cpu_text(row)} |" if with_cpu else ""))
     lines += ["", "Final return: per seed, the mean training average_return over the last 10% of "
               "iterations; mean over the n seeds with a 95% Student-t CI (mean +- t_{0.975, n-1} s / "
               "sqrt(n), s the seeds' sample standard deviation). Samples to TRPO's final return: "
@@ -276,7 +300,10 @@ def write_markdown(rows: Sequence[TableRow], path: Path, title: str) -> Path:
               "measured the same way, on the same machine). Final deterministic eval: each seed's last "
               "eval_return (mean action, 10 episodes, after the last iteration), with the same "
               "t-interval. Variance ratio: SVRG/SGD gradient variance at the probe step (< 1: SVRG "
-              "reduces variance).", ""]
+              "reduces variance)."
+              + (" CPU time: the learner's and its sampling workers' CPU seconds over the run "
+                 "(progress.csv cpu_learner + cpu_workers), which other processes on the machine "
+                 "disturb far less than wall-clock." if with_cpu else ""), ""]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines))
     return path
