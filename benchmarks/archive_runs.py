@@ -6,6 +6,14 @@ and older checkpoints are left out. Copying the archive back into a sweep root
 (`cp -r ARCHIVE/. ROOT/`) lets a later `svrpo sweep` on a fresh machine skip those runs.
 
     python benchmarks/archive_runs.py /work/runs results/runs
+
+`--partial` archives the unfinished runs instead (their newest readable checkpoint, with the
+same files), so that background runs survive the end of a session on a machine whose run root
+is not kept: commit the archive (results/partial-runs), copy it back into the sweep root at the
+start of the next session (`cp -r results/partial-runs/. runs/`) and re-run the sweep, which
+resumes them. A partial archive is replaced whole each time (runs that finished since leave it).
+
+    python benchmarks/archive_runs.py --partial runs results/partial-runs
 """
 
 from __future__ import annotations
@@ -39,11 +47,48 @@ def finished_runs(root: Path) -> list[Path]:
     return runs
 
 
+def partial_runs(root: Path) -> list[tuple[Path, Path]]:
+    """(run directory, its newest readable checkpoint) for each unfinished run under root that
+    has one."""
+    finished = set(finished_runs(root))
+    runs = []
+    for config_path in sorted(root.rglob("config.json")):
+        run_dir = config_path.parent
+        if run_dir in finished or not (run_dir / "checkpoints").is_dir():
+            continue
+        try:
+            _, newest, _ = checkpoint.load_latest(run_dir / "checkpoints")
+        except (checkpoint.CheckpointError, FileNotFoundError, OSError):
+            continue
+        runs.append((run_dir, newest))
+    return runs
+
+
+def archive_partial(root: Path, archive: Path) -> int:
+    """Replace `archive` by copies of the unfinished runs of root; the number archived."""
+    if archive.exists():
+        shutil.rmtree(archive)
+    runs = partial_runs(root)
+    for run_dir, newest in runs:
+        target = archive / run_dir.relative_to(root)
+        (target / "checkpoints").mkdir(parents=True, exist_ok=True)
+        for name in KEPT:
+            if (run_dir / name).is_file():
+                shutil.copy2(run_dir / name, target / name)
+        shutil.copy2(newest, target / "checkpoints" / newest.name)
+    return len(runs)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("root", type=Path)
     parser.add_argument("archive", type=Path)
+    parser.add_argument("--partial", action="store_true", help="archive the unfinished runs (see above)")
     args = parser.parse_args()
+    if args.partial:
+        count = archive_partial(args.root, args.archive)
+        print(f"archived {count} unfinished runs of {args.root} in {args.archive}")
+        return
     copied = 0
     for run_dir in finished_runs(args.root):
         target = args.archive / run_dir.relative_to(args.root)
