@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from svrpo.logging import read_progress  # noqa: E402
+from svrpo.rundir.logging import read_progress  # noqa: E402
 
 PRESETS = ("svrpo", "svrpo-loglik", "trpo")
 

@@ -41,7 +41,7 @@ from scipy import stats
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from svrpo.experiments.table import final_window, t_interval  # noqa: E402
-from svrpo.logging import read_progress  # noqa: E402
+from svrpo.rundir.logging import read_progress  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 DEFAULT_SB3 = (RESULTS / "sb3_anchor_1M.json", RESULTS / "sb3_anchor_1M_more.json")

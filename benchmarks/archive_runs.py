@@ -25,9 +25,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
-from svrpo import checkpoint  # noqa: E402
 from svrpo.config import Config  # noqa: E402
 from svrpo.experiments.jobs import completed_iterations  # noqa: E402
+from svrpo.rundir import checkpoint  # noqa: E402
 
 KEPT = ("config.json", "run.json", "progress.csv", "train.log")
 

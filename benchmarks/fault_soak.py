@@ -36,8 +36,8 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a checkout, uninstalled
 
-from svrpo import checkpoint  # noqa: E402
-from svrpo.bench import machine_info  # noqa: E402
+from svrpo.rundir import checkpoint  # noqa: E402
+from svrpo.tools.bench import machine_info  # noqa: E402
 from tests.helpers import RAY_SPEC, progress_rows, without_clock  # noqa: E402
 
 ITERATIONS = 20

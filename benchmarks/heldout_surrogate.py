@@ -48,14 +48,14 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from svrpo import checkpoint  # noqa: E402
-from svrpo.algorithm import build_run, snapshot_of, surrogate_batch  # noqa: E402
+from svrpo.analysis.plotting import mean_and_ci  # noqa: E402
 from svrpo.config import Config  # noqa: E402
-from svrpo.objectives import SurrogateBatch, mean_kl_from, surrogate  # noqa: E402
-from svrpo.parts import update_parts  # noqa: E402
-from svrpo.plotting import mean_and_ci  # noqa: E402
-from svrpo.policy import GaussianMlpPolicy  # noqa: E402
-from svrpo.update import update_policy  # noqa: E402
+from svrpo.core.algorithm import build_run, snapshot_of, surrogate_batch  # noqa: E402
+from svrpo.core.objectives import SurrogateBatch, mean_kl_from, surrogate  # noqa: E402
+from svrpo.core.parts import update_parts  # noqa: E402
+from svrpo.core.update import update_policy  # noqa: E402
+from svrpo.models.policy import GaussianMlpPolicy  # noqa: E402
+from svrpo.rundir import checkpoint  # noqa: E402
 
 UPDATES = ("svrpo", "svrpo-loglik", "trpo")
 Row = dict[str, Any]

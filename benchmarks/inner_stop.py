@@ -3,7 +3,7 @@
 Two measurements, both with KL anchored at the sampling policy (the presets' setting):
 
 * ``same-batches``: both rules update from the same batch, policy and generator states
-  (svrpo.bench.update_breakdown, after `--warmup-iterations` iterations so the policy has moved),
+  (svrpo.tools.bench.update_breakdown, after `--warmup-iterations` iterations so the policy has moved),
   at laptop scale on Hopper-v5 and Walker2d-v5: surrogate gain, inner steps run and accepted,
   line-search trials and update time. Writes benchmarks/results/inner_stop_same_batches.json.
 * ``learning``: reads the runs of the two sweeps benchmarks/inner_stop/{all,failed_search}.yaml
@@ -31,10 +31,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
-from svrpo.bench import machine_info, update_breakdown  # noqa: E402
+from svrpo.analysis.plotting import load_curve, mean_and_ci  # noqa: E402
 from svrpo.experiments.table import smoothed_seeds  # noqa: E402
-from svrpo.logging import read_progress  # noqa: E402
-from svrpo.plotting import load_curve, mean_and_ci  # noqa: E402
+from svrpo.rundir.logging import read_progress  # noqa: E402
+from svrpo.tools.bench import machine_info, update_breakdown  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 TASKS = ("Hopper-v5", "Walker2d-v5")

@@ -10,7 +10,7 @@ same learned state and generator states runs
 * TRPO's update: its policy update (trpo preset's parts) then the critic fit;
 * SVRPO's update: its policy update (svrpo preset's parts) then the critic fit,
 
-the policy update's pieces timed by wrapping its parts (svrpo.bench.timed_parts). The run
+the policy update's pieces timed by wrapping its parts (svrpo.tools.bench.timed_parts). The run
 continues from SVRPO's result. "Whole update" = policy update + observation-normaliser update
 + critic fit, i.e. what progress.csv's `time_update` measures less its bookkeeping. Each ratio
 is the median over the measured iterations of (seconds / that iteration's sampling seconds).
@@ -37,12 +37,12 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
-from svrpo.algorithm import _policy_inputs, build_run, run_iteration, snapshot_of, surrogate_batch  # noqa: E402
-from svrpo.baselines import MlpValueFunction  # noqa: E402
-from svrpo.bench import UPDATE_PARTS, _Timers, machine_info, timed_parts  # noqa: E402
 from svrpo.config import make_preset  # noqa: E402
-from svrpo.parts import update_parts  # noqa: E402
-from svrpo.update import update_policy  # noqa: E402
+from svrpo.core.algorithm import _policy_inputs, build_run, run_iteration, snapshot_of, surrogate_batch  # noqa: E402
+from svrpo.core.parts import update_parts  # noqa: E402
+from svrpo.core.update import update_policy  # noqa: E402
+from svrpo.models.baselines import MlpValueFunction  # noqa: E402
+from svrpo.tools.bench import UPDATE_PARTS, _Timers, machine_info, timed_parts  # noqa: E402
 
 
 def _learned_state(run: Any) -> dict[str, Any]:

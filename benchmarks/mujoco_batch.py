@@ -25,7 +25,7 @@ Per task:
       - sampler: today's Sampler (workers = cores, 8 envs each: the defaults), as in
         benchmarks/sampling_throughput.py;
       - physics: that script's reference, mujoco.rollout on one thread per core replaying the
-        exact states, warm starts and controls the sampler recorded (svrpo.bench.replay_states);
+        exact states, warm starts and controls the sampler recorded (svrpo.tools.bench.replay_states);
       - vector_1proc: one in-process RolloutWorker of E = workers x 8 envs (VectorStep);
       - batch_full_tN: the same worker with BatchStep on N threads (policy, physics, task logic,
         resets: a complete sampler, in one process);
@@ -61,13 +61,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
-from svrpo.bench import machine_info, random_snapshot, replay_states  # noqa: E402
 from svrpo.sampling.envs import make_env, scale_action  # noqa: E402
 from svrpo.sampling.policy_snapshot import PolicySnapshot  # noqa: E402
 from svrpo.sampling.rollout_worker import RolloutWorker, WorkerChunk  # noqa: E402
 from svrpo.sampling.sampler import Sampler, steps_per_env  # noqa: E402
 from svrpo.sampling.vector_step import TASKS as LOGIC  # noqa: E402
 from svrpo.sampling.vector_step import VectorStep  # noqa: E402
+from svrpo.tools.bench import machine_info, random_snapshot, replay_states  # noqa: E402
 
 TASKS = ["Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5"]
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION

@@ -22,7 +22,7 @@ import mujoco
 import torch
 
 from svrpo.config import PRESET_NAMES, make_preset
-from svrpo.training import train
+from svrpo.rundir.training import train
 
 TASKS = ("Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
 

@@ -8,7 +8,7 @@ control the env received; no Python at all. The replay through fresh, identicall
 Gymnasium envs is checked to reproduce the batch bit for bit (observations, rewards,
 terminations). Measurements alternate (ours, physics) per repeat; the ratio is median over
 median. Two policies per task: the initial one, and the one after a few TRPO iterations
-(`--trained-iterations`, laptop scale: see svrpo.bench.trained_snapshot for what that means).
+(`--trained-iterations`, laptop scale: see svrpo.tools.bench.trained_snapshot for what that means).
 
     python benchmarks/sampling_throughput.py                    # all six tasks
     python benchmarks/sampling_throughput.py --envs Hopper-v5 --steps 50000
@@ -24,7 +24,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
-from svrpo.bench import (  # noqa: E402
+from svrpo.tools.bench import (  # noqa: E402
     machine_info,
     random_snapshot,
     sampling_cpu_efficiency,

@@ -41,7 +41,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a checkout, uninstalled
 
-from svrpo import checkpoint  # noqa: E402
+from svrpo.rundir import checkpoint  # noqa: E402
 from tests.helpers import nested_equal, progress_rows, without_clock  # noqa: E402
 
 FAULT_KINDS = ("trainer", "startup", "worker")

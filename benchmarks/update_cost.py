@@ -4,7 +4,7 @@ Setting: the `svrpo` and `trpo` presets at `--scale paper` on Hopper-v5 (N = 50,
 J = 50, nu = 0.1 for SVRPO; nu = 1, J = 1 for TRPO; (64, 64) policy), both updating from the
 same batch, policy and generator states. Each repeat samples a fresh batch (timed: the
 iteration's sampling cost) after `--warmup-iterations` full SVRPO iterations, so the update
-measured is not the very first of a run. Parts (svrpo.bench.update_breakdown): full gradient,
+measured is not the very first of a run. Parts (svrpo.tools.bench.update_breakdown): full gradient,
 mini-batch gradients, Fisher setup, Fisher-vector products, CG recursion, line search,
 variance probe, other; also the baseline fits. Targets: SVRPO update <= sampling the same
 N steps; TRPO update <= 25% of it.
@@ -23,7 +23,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
-from svrpo.bench import machine_info, update_breakdown  # noqa: E402
+from svrpo.tools.bench import machine_info, update_breakdown  # noqa: E402
 
 
 def main() -> None:

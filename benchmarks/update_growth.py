@@ -1,10 +1,10 @@
 """Why the paper-scale update grew faster than N from N = 50,000 to 200,000: a profile, and
-the fix (svrpo.allocator) measured against glibc's default allocation thresholds.
+the fix (svrpo.tools.allocator) measured against glibc's default allocation thresholds.
 
 Each measurement runs in a fresh process, once with glibc's defaults ("default") and once with
-svrpo.allocator.keep_freed_memory ("keep", what training does), alternately:
+svrpo.tools.allocator.keep_freed_memory ("keep", what training does), alternately:
 
-1. The update split into its parts (svrpo.bench.update_breakdown) at N = 50,000 and 200,000
+1. The update split into its parts (svrpo.tools.bench.update_breakdown) at N = 50,000 and 200,000
    (Hopper-v5, paper preset, m = N/10, J = 50, one torch thread), with the number of calls of
    each part, so per-call cost and call counts can be told apart.
 2. The hot kernels alone, per row, with the process's minor page faults per call: the line
@@ -39,18 +39,18 @@ MODES = ("default", "keep")
 
 def _set_mode(mode: str) -> None:
     """"default": training's keep_freed_memory call does nothing (glibc's own thresholds)."""
-    import svrpo.algorithm
+    import svrpo.core.algorithm
 
     if mode == "default":
-        svrpo.algorithm.keep_freed_memory = lambda *args, **kwargs: False  # type: ignore[assignment]
+        svrpo.core.algorithm.keep_freed_memory = lambda *args, **kwargs: False  # type: ignore[assignment]
     else:
-        svrpo.algorithm.keep_freed_memory()
+        svrpo.core.algorithm.keep_freed_memory()
 
 
 def one_update(batch_size: int) -> dict[str, Any]:
     import resource
 
-    from svrpo.bench import update_breakdown
+    from svrpo.tools.bench import update_breakdown
 
     point = update_breakdown("Hopper-v5", "paper", seed=0, warmup_iterations=0, batch_size=batch_size,
                              total_steps=batch_size * 10,
@@ -64,9 +64,9 @@ def kernel_costs(repeats: int) -> dict[str, Any]:
     gradient vs n."""
     import resource
 
-    from svrpo.objectives import SurrogateBatch
-    from svrpo.policy import GaussianMlpPolicy
-    from svrpo.update import FullBatchEvaluator
+    from svrpo.core.objectives import SurrogateBatch
+    from svrpo.core.update import FullBatchEvaluator
+    from svrpo.models.policy import GaussianMlpPolicy
 
     torch.set_num_threads(1)
     generator = torch.Generator().manual_seed(0)
@@ -125,7 +125,7 @@ def main() -> None:
         print(json.dumps(work))
         return
 
-    from svrpo.bench import machine_info
+    from svrpo.tools.bench import machine_info
 
     report: dict[str, Any] = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
                               "machine": machine_info(), "updates": {m: [] for m in MODES},

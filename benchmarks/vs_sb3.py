@@ -56,7 +56,7 @@ def run_ours(env_id: str, seed: int, iterations: int) -> dict[str, Any]:
     import numpy as np
 
     from svrpo.config import make_preset
-    from svrpo.training import train
+    from svrpo.rundir.training import train
 
     config = make_preset("trpo", env_id, "laptop").replace(
         **OUR_CONFIG, seed=seed, total_steps=iterations * 2048, eval_every=iterations,
@@ -179,7 +179,7 @@ def main() -> None:
         return
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from svrpo.bench import machine_info
+    from svrpo.tools.bench import machine_info
 
     report: dict[str, Any] = {
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),

@@ -29,11 +29,11 @@ def __getattr__(name: str) -> Any:
 
         return train
     if name == "load_policy":
-        from svrpo.evaluation import load_policy
+        from svrpo.analysis.evaluation import load_policy
 
         return load_policy
     if name in _ESTIMATOR_NAMES:
-        from svrpo import estimators
+        from svrpo.core import estimators
 
         return getattr(estimators, name)
     raise AttributeError(f"module 'svrpo' has no attribute {name!r}")

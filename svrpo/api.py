@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from svrpo.config import Config
 
 if TYPE_CHECKING:
-    from svrpo.estimators import GradientEstimator
+    from svrpo.core.estimators import GradientEstimator
 
 
 def train(config: Config, run_dir: str | os.PathLike[str], resume: bool = False,
@@ -28,13 +28,13 @@ def train(config: Config, run_dir: str | os.PathLike[str], resume: bool = False,
     env: a function that builds your own Gymnasium env, defined at the top level of an
     importable module (each sampling worker imports it); the run's env_id becomes
     "module:function", so config.json still names the task.
-    estimator: your gradient estimator (the svrpo.estimators.GradientEstimator protocol, see
+    estimator: your gradient estimator (the svrpo.core.estimators.GradientEstimator protocol, see
     docs/estimators.md) in place of config.estimator's; pass it again to resume.
     """
-    from svrpo.parts import check_estimator
+    from svrpo.core.parts import check_estimator
+    from svrpo.rundir.training import RunRecord
+    from svrpo.rundir.training import train as train_run
     from svrpo.sampling.envs import env_id_of
-    from svrpo.training import RunRecord
-    from svrpo.training import train as train_run
 
     if estimator is not None:
         check_estimator(estimator)  # before anything is written

@@ -18,8 +18,8 @@ from svrpo.arguments import CommandLineError, OneLineParser
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, field_names, make_preset
 from svrpo.errors import CheckpointError, EnvError, EvaluationError, SpecError
 from svrpo.errors import one_line as checkpoint_one_line
-from svrpo.run_files import RunDirectoryError, check_claim, check_run_directory_path
-from svrpo.run_lock import LockedError, exclusive_writer
+from svrpo.rundir.run_files import RunDirectoryError, check_claim, check_run_directory_path
+from svrpo.rundir.run_lock import LockedError, exclusive_writer
 
 if TYPE_CHECKING:
     from svrpo.experiments.backends import Backend
@@ -135,7 +135,7 @@ def _train_locked(args: argparse.Namespace, config: Config, preset: str, run_dir
     # too, so that a refusal comes before anything is printed.
     check_claim(run_dir, args.resume is not None, args.overwrite)
     from svrpo.experiments.runner import raise_keyboard_interrupt
-    from svrpo.training import RunRecord, TrainingError, train
+    from svrpo.rundir.training import RunRecord, TrainingError, train
 
     print(f"training {preset} on {config.env_id}: {config.iterations} iterations x "
           f"N={config.batch_size} steps -> {run_dir}", file=sys.stderr)
@@ -158,7 +158,7 @@ def _train_locked(args: argparse.Namespace, config: Config, preset: str, run_dir
 def _readable_runs(run_dirs: list[Path]) -> tuple[list[Path], set[str]]:
     """The runs whose config.json and progress.csv parse, and the columns they have; each
     skipped run is named in one line (a half-written cell in one run must not stop the report)."""
-    from svrpo.logging import read_progress
+    from svrpo.rundir.logging import read_progress
 
     readable: list[Path] = []
     columns: set[str] = set()
@@ -181,8 +181,8 @@ def _plot(args: argparse.Namespace, extra: list[str]) -> int:
     `svrpo sweep`, and the learning-curve PNG for any other runs found there."""
     if extra:
         raise UsageError(f"unexpected arguments {' '.join(extra)}")
+    from svrpo.analysis.plotting import find_run_dirs, plot_runs
     from svrpo.experiments.report import default_report_dir, group_by_experiment, write_report
-    from svrpo.plotting import find_run_dirs, plot_runs
 
     paths = [Path(p) for p in args.run_dirs]
     for path in paths:
@@ -286,7 +286,7 @@ def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
 def _evaluate(args: argparse.Namespace, extra: list[str]) -> int:
     if extra:
         raise UsageError(f"unexpected arguments {' '.join(extra)}")
-    from svrpo.evaluation import evaluate, record_video
+    from svrpo.analysis.evaluation import evaluate, record_video
 
     if args.episodes < 1:
         raise UsageError(f"--episodes must be >= 1; got {args.episodes}")
@@ -338,7 +338,7 @@ def _fields(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _bench(args: argparse.Namespace, extra: list[str]) -> int:
-    from svrpo import bench
+    from svrpo.tools import bench
 
     return bench.main(extra)
 
@@ -435,7 +435,7 @@ def make_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--allow-import", action="append", default=[], metavar="MODULE",
                           help="allow a file naming a 'MODULE:Env' task to import MODULE (runs its code)")
     evaluate.set_defaults(handler=_evaluate)
-    # `svrpo bench` owns its options (svrpo/bench.py); everything after `bench` is passed through.
+    # `svrpo bench` owns its options (svrpo/tools/bench.py); everything after `bench` is passed through.
     bench = commands.add_parser("bench", add_help=False,
                                 help="quick sampling-vs-physics and update-cost check of this machine")
     bench.set_defaults(handler=_bench)

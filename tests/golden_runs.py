@@ -18,7 +18,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from svrpo.logging import WALL_CLOCK_COLUMNS
+from svrpo.rundir.logging import WALL_CLOCK_COLUMNS
 
 GOLDEN_FILE = Path(__file__).parent / "data" / "golden_progress.json"
 
@@ -48,7 +48,7 @@ def run_case(name: str, directory: Path) -> list[dict[str, str]]:
     import csv
 
     from svrpo.config import make_preset
-    from svrpo.training import train
+    from svrpo.rundir.training import train
 
     preset, overrides = CASES[name]
     config = make_preset(preset, "Hopper-v5", "laptop")

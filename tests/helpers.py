@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from svrpo.logging import WALL_CLOCK_COLUMNS
+from svrpo.rundir.logging import WALL_CLOCK_COLUMNS
 
 
 def progress_rows(run_dir: Path, complete_only: bool = False) -> list[dict[str, str]]:

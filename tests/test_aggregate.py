@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from svrpo.analysis.plotting import RunCurve
 from svrpo.experiments.aggregate import (
     TaskRuns,
     aggregate_report,
@@ -19,7 +20,6 @@ from svrpo.experiments.aggregate import (
     untrained_return,
     write_aggregate,
 )
-from svrpo.plotting import RunCurve
 
 
 def test_normalised_maps_random_to_0_and_reference_to_1() -> None:

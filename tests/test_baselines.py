@@ -5,7 +5,12 @@ from __future__ import annotations
 import pytest
 import torch
 
-from svrpo.baselines import LinearFeatureBaseline, MlpValueFunction, explained_variance, linear_features
+from svrpo.models.baselines import (
+    LinearFeatureBaseline,
+    MlpValueFunction,
+    explained_variance,
+    linear_features,
+)
 
 
 def test_linear_features_layout() -> None:

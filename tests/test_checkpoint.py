@@ -1,4 +1,4 @@
-"""svrpo.checkpoint and progress.csv truncation: atomic files, untrusted input, crash leftovers."""
+"""svrpo.rundir.checkpoint and progress.csv truncation: atomic files, untrusted input, crash leftovers."""
 
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from svrpo import checkpoint
-from svrpo.algorithm import build_run
-from svrpo.checkpoint import CheckpointError
 from svrpo.config import make_preset
-from svrpo.logging import RunLogger, read_progress, truncate_progress
+from svrpo.core.algorithm import build_run
+from svrpo.rundir import checkpoint
+from svrpo.rundir.checkpoint import CheckpointError
+from svrpo.rundir.logging import RunLogger, read_progress, truncate_progress
 
 
 def _state(iteration: int) -> dict[str, object]:

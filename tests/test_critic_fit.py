@@ -7,7 +7,7 @@ import copy
 import pytest
 import torch
 
-from svrpo.baselines import MlpValueFunction
+from svrpo.models.baselines import MlpValueFunction
 
 
 def reference_fit(critic: MlpValueFunction, observations: torch.Tensor, targets: torch.Tensor) -> None:

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from svrpo.config import Surrogate, make_preset
-from svrpo.estimators import (
+from svrpo.core.estimators import (
     BatchGradients,
     FullGradient,
     GradientEstimator,
@@ -28,10 +28,10 @@ from svrpo.estimators import (
     subset_gradient,
     svrg_gradient,
 )
-from svrpo.objectives import SurrogateBatch, old_log_prob, per_sample_surrogate, surrogate
-from svrpo.parameters import flat_parameters, set_flat_parameters
-from svrpo.parts import estimator_for
-from svrpo.policy import GaussianMlpPolicy
+from svrpo.core.objectives import SurrogateBatch, old_log_prob, per_sample_surrogate, surrogate
+from svrpo.core.parts import estimator_for
+from svrpo.models.parameters import flat_parameters, set_flat_parameters
+from svrpo.models.policy import GaussianMlpPolicy
 
 N, OBS_DIM, ACT_DIM = 48, 3, 2
 KINDS: tuple[Surrogate, ...] = ("ratio", "loglik")
@@ -378,7 +378,7 @@ def test_each_estimator_reads_what_its_formula_names() -> None:
 def test_config_names_build_the_matching_estimator() -> None:
     """Every value config.estimator accepts has a registered factory, and every factory a value."""
     from svrpo.config import Estimator
-    from svrpo.estimators import ESTIMATORS
+    from svrpo.core.estimators import ESTIMATORS
 
     assert set(typing.get_args(Estimator)) == set(ESTIMATORS)
     config = make_preset("svrpo", "Hopper-v5", "laptop")

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from svrpo.analysis.evaluation import EvaluationError, evaluate, find_checkpoint, load_policy
 from svrpo.cli import main
 from svrpo.config import make_preset
-from svrpo.evaluation import EvaluationError, evaluate, find_checkpoint, load_policy
-from svrpo.training import train
+from svrpo.rundir.training import train
 
 EVAL_SEED_OFFSET = 1_000_003  # algorithm.run_iteration evaluates with seed config.seed + this
 
@@ -100,7 +100,7 @@ def test_video_reports_a_broken_gl_backend_in_one_line(
 ) -> None:
     if load_policy(run_dir).config.normalize_observations:
         pytest.skip("once is enough")
-    from svrpo.evaluation import record_video
+    from svrpo.analysis.evaluation import record_video
 
     monkeypatch.setenv("MUJOCO_GL", "no-such-backend")  # only the rendering child sees it
     with pytest.raises(EvaluationError, match="MUJOCO_GL=no-such-backend"):

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from svrpo.parameters import flat_parameters, set_flat_parameters
-from svrpo.policy import GaussianMlpPolicy
+from svrpo.models.parameters import flat_parameters, set_flat_parameters
+from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.sampling.rollout_worker import RolloutWorker
 from svrpo.trust_region.metrics import autograd_fisher_vector_product, fisher_vector_product
 
@@ -76,7 +76,7 @@ def test_worker_state_round_trip_continues_bit_exactly(env_id: str) -> None:
 
 
 def test_sampling_benchmark_replay_is_bit_exact() -> None:
-    from svrpo.bench import random_snapshot, sampling_vs_physics
+    from svrpo.tools.bench import random_snapshot, sampling_vs_physics
 
     result = sampling_vs_physics("Hopper-v5", random_snapshot("Hopper-v5"), steps=400, repeats=1,
                                  workers=1, envs_per_worker=2)
@@ -86,7 +86,7 @@ def test_sampling_benchmark_replay_is_bit_exact() -> None:
 
 def test_bench_main_runs_and_writes_json(tmp_path: Path) -> None:
     """`svrpo bench` end to end at toy sizes: both measurements run and are written."""
-    from svrpo.bench import main
+    from svrpo.tools.bench import main
 
     out = tmp_path / "bench.json"
     assert main(["--steps", "400", "--repeats", "1", "--batch-size", "1000", "--out", str(out)]) == 0

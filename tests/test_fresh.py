@@ -22,18 +22,18 @@ import torch
 from torch import nn
 
 import svrpo
-from svrpo.algorithm import build_run, run_iteration
 from svrpo.config import FRESH_ESTIMATORS, FRESH_PRESET_BASE, Estimator, differing_fields, make_preset
-from svrpo.estimators import ESTIMATORS
+from svrpo.core.algorithm import build_run, run_iteration
+from svrpo.core.estimators import ESTIMATORS
+from svrpo.core.objectives import SurrogateBatch
+from svrpo.core.streams import RandomStreams
 from svrpo.fresh.base import FreshEstimator, FreshGradientEstimator
 from svrpo.fresh.gradients import FreshGradients, importance_weights
 from svrpo.fresh.sgd import FreshMinibatchGradient
 from svrpo.fresh.srvrpg import SrvrpgGradient, srvrpg_gradient
 from svrpo.fresh.stormpg import StormPgGradient, stormpg_gradient
 from svrpo.fresh.svrpg import SvrpgGradient, svrpg_gradient
-from svrpo.objectives import SurrogateBatch
-from svrpo.parameters import flat_parameters, set_flat_parameters
-from svrpo.streams import RandomStreams
+from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from tests.helpers import progress_rows, without_clock
 
 TARGET = 0.7
@@ -290,7 +290,7 @@ def test_stopping_and_resuming_a_fresh_run_gives_the_uninterrupted_rows(tmp_path
 def test_every_accepted_fresh_step_is_inside_both_balls_on_its_fresh_states() -> None:
     """With the budgeted anchor each accepted step is within kl_step of w_j and within max_kl of
     pi_{w~}, measured on the fresh states of that step, on a run where the budget binds."""
-    from svrpo.policy import gaussian_kl
+    from svrpo.models.policy import gaussian_kl
 
     config = _tiny("svrpg", inner_steps=6, kl_step=0.004, max_kl=0.006, inner_stop="all")
     run = build_run(config)
@@ -336,14 +336,14 @@ def test_every_accepted_fresh_step_is_inside_both_balls_on_its_fresh_states() ->
 def test_a_fresh_batch_keeps_the_behaviour_policy_the_sampling_policy_and_the_snapshot_scale() -> None:
     """fresh_surrogate_batch: old_log_prob is the live policy's (w_j), old_mean the sampling
     policy's (w~), advantages standardised with the snapshot batch's mean and std."""
-    from svrpo.algorithm import (
+    from svrpo.core.algorithm import (
         _raw_advantages,
         advantage_scale,
         fresh_surrogate_batch,
         snapshot_of,
         surrogate_batch,
     )
-    from svrpo.policy import gaussian_log_prob
+    from svrpo.models.policy import gaussian_log_prob
 
     run = build_run(_tiny("svrpg"))
     try:

@@ -8,9 +8,9 @@ import pytest
 import torch
 from torch.func import functional_call, grad, hessian, jacrev, vmap
 
-from svrpo.objectives import mean_kl_from
-from svrpo.parameters import flat_parameters, set_flat_parameters
-from svrpo.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
+from svrpo.core.objectives import mean_kl_from
+from svrpo.models.parameters import flat_parameters, set_flat_parameters
+from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
 from svrpo.trust_region.metrics import (
     DirectionMetric,
     FisherMetric,

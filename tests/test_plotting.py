@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from svrpo.analysis.plotting import find_run_dirs
 from svrpo.cli import main
 from svrpo.config import make_preset
 from svrpo.experiments.report import group_by_experiment
 from svrpo.experiments.table import final_window, first_reaching
-from svrpo.plotting import find_run_dirs
 
 PNG = b"\x89PNG\r\n\x1a\n"
 ITERATIONS = 20  # window k = ceil(0.1 * 20) = 2 iterations
@@ -209,7 +209,7 @@ def test_iterations_without_finished_episodes_do_not_break_the_line(
     """Swimmer's episodes end every few iterations: the curve joins the iterations that have one."""
     from matplotlib.figure import Figure
 
-    from svrpo.plotting import load_curve, plot_panels
+    from svrpo.analysis.plotting import load_curve, plot_panels
 
     returns = [math.nan if k % 3 else float(k) for k in range(1, ITERATIONS + 1)]
     runs = [load_curve(write_run(tmp_path, "Swimmer-v5", "trpo", seed, returns, experiment=None))
@@ -254,7 +254,7 @@ def test_plot_refuses_an_unknown_metric_and_a_non_positive_window(
 
 def _path_dependent_presets() -> list[str]:
     from svrpo.config import PRESET_NAMES
-    from svrpo.parts import estimator_for
+    from svrpo.core.parts import estimator_for
 
     return [p for p in PRESET_NAMES if estimator_for(make_preset(p, "Hopper-v5", "laptop")).path_dependent]
 
@@ -294,8 +294,8 @@ def test_recursive_estimators_get_a_figure_of_their_own_error(tmp_path: Path, re
 
 
 def test_every_preset_has_its_own_colour_and_the_paper_keeps_svrpo_red_trpo_blue() -> None:
+    from svrpo.analysis.plotting import PRESET_COLORS
     from svrpo.config import PRESET_NAMES
-    from svrpo.plotting import PRESET_COLORS
 
     assert set(PRESET_COLORS) == set(PRESET_NAMES)
     assert len(set(PRESET_COLORS.values())) == len(PRESET_NAMES)

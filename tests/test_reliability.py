@@ -35,17 +35,19 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from svrpo import algorithm, checkpoint, cli, training, update
-from svrpo.algorithm import build_run
-from svrpo.baselines import MlpValueFunction
+from svrpo import cli
 from svrpo.config import Config, ConfigError, coerce_field, field_names, make_preset
-from svrpo.estimators import BatchGradients, SvrgGradient
-from svrpo.parameters import flat_parameters
-from svrpo.run_files import RunDirectoryError
-from svrpo.run_lock import LockedError
+from svrpo.core import algorithm, update
+from svrpo.core.algorithm import build_run
+from svrpo.core.estimators import BatchGradients, SvrgGradient
+from svrpo.models.baselines import MlpValueFunction
+from svrpo.models.parameters import flat_parameters
+from svrpo.rundir import checkpoint, training
+from svrpo.rundir.run_files import RunDirectoryError
+from svrpo.rundir.run_lock import LockedError
+from svrpo.rundir.training import train
 from svrpo.sampling import restarting
 from svrpo.sampling.sampler import Sampler
-from svrpo.training import train
 from tests.helpers import nested_equal, progress_rows, without_clock
 from tests.nan_envs import NAN_REWARD_ID
 
@@ -615,7 +617,7 @@ def test_workers_that_keep_dying_stop_the_run_clearly_then_resume_loses_nothing(
 _HOLD_LOCK = """
 import sys, time
 from pathlib import Path
-from svrpo.run_lock import exclusive_writer, record_holder
+from svrpo.rundir.run_lock import exclusive_writer, record_holder
 with exclusive_writer(Path(sys.argv[1])):
     record_holder(Path(sys.argv[1]))
     print("locked", flush=True)
@@ -966,7 +968,7 @@ def test_a_progress_write_that_fails_keeps_the_checkpoint_and_rows_before_it(
     exactly the rows of an undisturbed run."""
     import errno
 
-    from svrpo.logging import RunLogger
+    from svrpo.rundir.logging import RunLogger
 
     config = make_preset("trpo", ENV, "laptop").replace(total_steps=1000, batch_size=100, num_workers=0,
                                                          envs_per_worker=1, eval_every=0, checkpoint_every=2)

@@ -15,9 +15,9 @@ import torch
 
 import svrpo
 from svrpo.config import PRESET_NAMES, Config, make_preset
-from svrpo.parts import PART_REGISTRIES
-from svrpo.run_files import RunDirectoryError
-from svrpo.streams import LEGACY_OFFSETS, RandomStreams, stream_seed
+from svrpo.core.parts import PART_REGISTRIES
+from svrpo.core.streams import LEGACY_OFFSETS, RandomStreams, stream_seed
+from svrpo.rundir.run_files import RunDirectoryError
 from tests.helpers import progress_rows, without_clock
 
 PACKAGE = Path(svrpo.__file__).resolve().parent
@@ -101,8 +101,8 @@ def test_a_state_written_before_the_stream_allocator_resumes(tmp_path: Path) -> 
     config = _tiny("svrpo")
     run = svrpo.train(config, tmp_path / "a", show_progress=False, callback=_stop_after(1))
     del run
-    from svrpo.checkpoint import load_latest
-    from svrpo.run import build_run
+    from svrpo.core.run import build_run
+    from svrpo.rundir.checkpoint import load_latest
 
     state, path, _ = load_latest(tmp_path / "a" / "checkpoints")
     old = {k: v for k, v in state.items() if k not in ("streams", "parts")}

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from svrpo.policy import GaussianMlpPolicy
+from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.rollout_worker import first_episode_cuts
 from svrpo.sampling.sampler import Batch, Sampler, steps_per_env

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from svrpo.analysis.plotting import RunCurve
 from svrpo.experiments.table import summarize, t_interval, write_markdown
-from svrpo.plotting import RunCurve
 
 T_0975 = {1: 12.706205, 2: 4.302653, 4: 2.776445}
 """t_{0.975, df}: the two-sided 95% quantiles of Student's t (printed tables)."""

@@ -7,13 +7,13 @@ from pathlib import Path
 import pytest
 import torch
 
-from svrpo.algorithm import build_run, surrogate_batch
 from svrpo.config import make_preset
-from svrpo.objectives import mean_kl_from
-from svrpo.parameters import flat_parameters, set_flat_parameters
-from svrpo.parts import update_parts
-from svrpo.training import train
-from svrpo.update import update_policy
+from svrpo.core.algorithm import build_run, surrogate_batch
+from svrpo.core.objectives import mean_kl_from
+from svrpo.core.parts import update_parts
+from svrpo.core.update import update_policy
+from svrpo.models.parameters import flat_parameters, set_flat_parameters
+from svrpo.rundir.training import train
 from tests.helpers import progress_rows, without_clock
 
 
@@ -163,7 +163,7 @@ def test_task_keeps_its_own_time_limit_in_training_and_evaluation(tmp_path: Path
     assert [float(row["episode_length"]) for row in rows] == [100.0, 100.0]
     # env 0's first episode is cut at 50 steps (staggering) and not counted: 9 complete ones.
     assert [int(row["episodes"]) for row in rows] == [9, 10]
-    from svrpo.evaluation import load_policy, run_episodes
+    from svrpo.analysis.evaluation import load_policy, run_episodes
 
     _, lengths = run_episodes(load_policy(tmp_path), episodes=2, seed=0)
     assert lengths.tolist() == [100, 100]

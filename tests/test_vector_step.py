@@ -64,7 +64,7 @@ def test_worker_batch_replays_through_gymnasium(env_id: str) -> None:
     Gymnasium env.step returns for the recorded actions: the fast path changes no result."""
     import torch
 
-    from svrpo.policy import GaussianMlpPolicy
+    from svrpo.models.policy import GaussianMlpPolicy
     from svrpo.sampling.rollout_worker import RolloutWorker
 
     num_envs, horizon, seed = 2, 30, 5

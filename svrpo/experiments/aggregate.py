@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from svrpo.analysis.plotting import RunCurve, common_length
 from svrpo.experiments.table import smoothed_seeds, untrained_return
-from svrpo.plotting import RunCurve, common_length
 
 Scores = Sequence[np.ndarray]
 """One (runs,) array of scores per task (normalised for the IQM; returns for P(X > Y))."""

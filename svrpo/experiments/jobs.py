@@ -15,12 +15,12 @@ from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 
-from svrpo import checkpoint
-from svrpo.atomic import write_text_atomic
 from svrpo.config import Config, differing_fields
 from svrpo.experiments.specs import ExperimentSpec, SpecError
-from svrpo.run_files import foreign_entries
-from svrpo.run_record import write_config, write_meta
+from svrpo.rundir import checkpoint
+from svrpo.rundir.atomic import write_text_atomic
+from svrpo.rundir.run_files import foreign_entries
+from svrpo.rundir.run_record import write_config, write_meta
 
 
 class RunStatus(str, Enum):
@@ -178,7 +178,7 @@ def prepare(job: RunJob) -> None:
 
 def execute(run_dir: Path) -> JobResult:
     """Train (or resume) the run in `run_dir` in this process, from its config.json."""
-    from svrpo.training import train
+    from svrpo.rundir.training import train
 
     config = Config.from_json((run_dir / "config.json").read_text())
     started = time.perf_counter()

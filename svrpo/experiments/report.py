@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
+from svrpo.analysis.plotting import RunCurve, load_curve, plot_panels
 from svrpo.experiments.aggregate import aggregate_report, write_aggregate
 from svrpo.experiments.specs import NAMED_EXPERIMENTS, PAPER_TASKS
 from svrpo.experiments.table import summarize, write_csv, write_markdown
-from svrpo.plotting import RunCurve, load_curve, plot_panels
 
 REPORT_FILES = ("returns.png", "variance_ratio.png", "estimator_error_ratio.png", "table.md", "table.csv",
                 "aggregate.md", "aggregate.json")
@@ -115,7 +115,7 @@ def _path_dependent(run_dir: Path) -> bool:
     """Whether the run's estimator part says its estimates depend on the inner path (asked of
     the part its registry builds, so a new recursive estimator is drawn without an edit here)."""
     from svrpo.config import Config, ConfigError
-    from svrpo.parts import estimator_for
+    from svrpo.core.parts import estimator_for
 
     try:
         config = Config.from_json((run_dir / "config.json").read_text())

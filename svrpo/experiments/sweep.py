@@ -23,7 +23,7 @@ from svrpo.experiments.jobs import (
     status,
 )
 from svrpo.experiments.specs import ExperimentSpec, SpecError
-from svrpo.run_lock import exclusive_writer, record_holder
+from svrpo.rundir.run_lock import exclusive_writer, record_holder
 from svrpo.sampling.envs import env_info
 
 

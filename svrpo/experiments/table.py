@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from svrpo.plotting import RunCurve, common_length, smooth
+from svrpo.analysis.plotting import RunCurve, common_length, smooth
 
 FINAL_FRACTION = 0.1
 """Share of the last iterations averaged into a run's final return."""

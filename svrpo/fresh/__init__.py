@@ -7,5 +7,5 @@ STORM-PG, and their plain fresh-SGD twin), inside the trust region.
 * `svrpg.py`, `srvrpg.py`, `stormpg.py`, `sgd.py`: one estimator each;
 * `loop.py`       the inner loop that samples (update_policy_fresh).
 
-Torch only; nothing here imports svrpo.estimators (which registers these estimators).
+Torch only; nothing here imports svrpo.core.estimators (which registers these estimators).
 """

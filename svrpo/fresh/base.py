@@ -13,11 +13,11 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import torch
 
+from svrpo.core.lifecycle import Part
 from svrpo.fresh.gradients import FreshGradients
-from svrpo.lifecycle import Part
 
 if TYPE_CHECKING:
-    from svrpo.estimators import BatchGradients
+    from svrpo.core.estimators import BatchGradients
 
 
 @runtime_checkable

@@ -20,9 +20,9 @@ import copy
 
 import torch
 
-from svrpo.objectives import SurrogateBatch
-from svrpo.parameters import flat_gradient, flat_parameters, set_flat_parameters
-from svrpo.policy import GaussianMlpPolicy
+from svrpo.core.objectives import SurrogateBatch
+from svrpo.models.parameters import flat_gradient, flat_parameters, set_flat_parameters
+from svrpo.models.policy import GaussianMlpPolicy
 
 
 def importance_weights(log_prob: torch.Tensor, behaviour_log_prob: torch.Tensor,

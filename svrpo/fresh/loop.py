@@ -23,12 +23,9 @@ from collections.abc import Callable
 
 import torch
 
-from svrpo.fresh.base import FreshGradientEstimator
-from svrpo.fresh.gradients import FreshGradients
-from svrpo.objectives import SurrogateBatch
-from svrpo.parts import UpdateParts
-from svrpo.policy import GaussianMlpPolicy
-from svrpo.update import (
+from svrpo.core.objectives import SurrogateBatch
+from svrpo.core.parts import UpdateParts
+from svrpo.core.update import (
     NO_DIAGNOSTIC,
     FullBatchEvaluator,
     InnerLoopTally,
@@ -36,6 +33,9 @@ from svrpo.update import (
     draw_rows,
     trust_region_step,
 )
+from svrpo.fresh.base import FreshGradientEstimator
+from svrpo.fresh.gradients import FreshGradients
+from svrpo.models.policy import GaussianMlpPolicy
 
 FreshDraw = Callable[[], SurrogateBatch]
 """() -> B steps sampled with the policy's current parameters, prepared as a SurrogateBatch whose
@@ -57,7 +57,7 @@ def update_policy_fresh(
     loop, estimator = parts.loop, parts.estimator
     if not isinstance(estimator, FreshGradientEstimator):
         raise TypeError(f"{type(estimator).__name__} has no estimate_fresh: it reuses the snapshot "
-                        "batch and runs in svrpo.update.update_policy")
+                        "batch and runs in svrpo.core.update.update_policy")
     gradients = parts.gradients(policy, batch, loop.surrogate)  # g~ at w~, once
     parts.start(gradients)
     snapshot = FullBatchEvaluator(policy, batch, loop.surrogate)

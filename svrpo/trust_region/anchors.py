@@ -1,7 +1,7 @@
 """Which policy anchors the KL trust region of each inner step, and how far a step may go
 from it (DESIGN.md decision 2).
 
-The anchor is a part (svrpo.lifecycle.Part): it owns the radius, so an anchor whose radius
+The anchor is a part (svrpo.core.lifecycle.Part): it owns the radius, so an anchor whose radius
 changes within an iteration (e.g. shrinks with the KL already used) needs no edit in the
 update. `KL_ANCHORS` maps each config value of `kl_anchor` to the factory of its part.
 """
@@ -16,14 +16,14 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import torch
 
 from svrpo.config import Config
-from svrpo.lifecycle import Part
-from svrpo.objectives import SurrogateBatch
-from svrpo.parameters import flat_parameters
-from svrpo.policy import GaussianMlpPolicy
+from svrpo.core.lifecycle import Part
+from svrpo.core.objectives import SurrogateBatch
+from svrpo.models.parameters import flat_parameters
+from svrpo.models.policy import GaussianMlpPolicy
 
 if TYPE_CHECKING:
-    from svrpo.estimators import BatchGradients
-    from svrpo.streams import RandomStreams
+    from svrpo.core.estimators import BatchGradients
+    from svrpo.core.streams import RandomStreams
 
 Gaussian = tuple[torch.Tensor, torch.Tensor]
 """(mean, log_std) per batch row, both (N, act_dim)."""
@@ -47,7 +47,7 @@ class KlBound:
 @runtime_checkable
 class KlAnchor(Protocol):
     """Gives the trust region of the step about to leave the policy's current w_j; a part with
-    the svrpo.lifecycle.Part methods (start, state_dict, load_state_dict)."""
+    the svrpo.core.lifecycle.Part methods (start, state_dict, load_state_dict)."""
 
     def bound(self, batch: SurrogateBatch, policy: GaussianMlpPolicy) -> KlBound:
         """The anchor's (mean, log_std), both (N, act_dim), and the radius for this step."""

@@ -12,7 +12,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from svrpo.atomic import write_text_atomic
+from svrpo.rundir.atomic import write_text_atomic
 
 # Columns that depend on the machine, not on the seed: left out of determinism checks.
 WALL_CLOCK_COLUMNS = ("wall_time", "time_sampling", "time_update", "steps_per_second", "cpu_learner",

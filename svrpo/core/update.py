@@ -1,7 +1,7 @@
 """One outer iteration's policy update: J inner trust-region steps (Algorithm 1, lines 5-12).
 
 The parts (estimator, direction metric, KL anchor, stopping rule) arrive built, in an
-`UpdateParts` (svrpo/parts.py); TRPO is the same function with the full-gradient estimator,
+`UpdateParts` (svrpo/core/parts.py); TRPO is the same function with the full-gradient estimator,
 J = 1 and nu = 1. The function returns its statistics; only the training loop logs them.
 """
 
@@ -14,11 +14,11 @@ from dataclasses import dataclass, field
 import torch
 
 from svrpo.config import Surrogate
-from svrpo.estimators import VarianceDiagnostic
-from svrpo.objectives import SurrogateBatch, per_sample_surrogate
-from svrpo.parameters import flat_parameters, set_flat_parameters
-from svrpo.parts import UpdateParts
-from svrpo.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
+from svrpo.core.estimators import VarianceDiagnostic
+from svrpo.core.objectives import SurrogateBatch, per_sample_surrogate
+from svrpo.core.parts import UpdateParts
+from svrpo.models.parameters import flat_parameters, set_flat_parameters
+from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
 from svrpo.trust_region.anchors import KlBound
 from svrpo.trust_region.line_search import LineSearchResult
 from svrpo.trust_region.metrics import max_step_length

@@ -17,17 +17,17 @@ from typing import Any
 import numpy as np
 import torch
 
-from svrpo.allocator import keep_freed_memory
-from svrpo.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction
 from svrpo.config import Config, ConfigError
+from svrpo.core.estimators import GradientEstimator
+from svrpo.core.parts import UpdateParts, update_parts
+from svrpo.core.streams import RandomStreams
 from svrpo.errors import CheckpointError, one_line
-from svrpo.estimators import GradientEstimator
-from svrpo.normalization import RunningMeanStd
-from svrpo.parts import UpdateParts, update_parts
-from svrpo.policy import GaussianMlpPolicy
+from svrpo.models.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction
+from svrpo.models.normalization import RunningMeanStd
+from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.sampling.restarting import RestartingSampler
 from svrpo.sampling.sampler import Sampler
-from svrpo.streams import RandomStreams
+from svrpo.tools.allocator import keep_freed_memory
 
 MUST_MATCH = ("env_id", "hidden_sizes", "baseline", "baseline_hidden_sizes", "normalize_observations",
               "num_workers", "envs_per_worker")
@@ -54,7 +54,7 @@ class Run:
     parts: UpdateParts
     """The policy update's estimator, metric, KL anchor and stopping rule, built from config."""
     streams: RandomStreams = field(default_factory=lambda: RandomStreams(0))
-    """Every random stream of the learner, by name (svrpo/streams.py)."""
+    """Every random stream of the learner, by name (svrpo/core/streams.py)."""
     iteration: int = 0
     env_steps: int = 0
     wall_time: float = 0.0

@@ -1,6 +1,6 @@
 """Gradient estimators of the surrogate U(w) = mean_t U_t(w) for the inner loop.
 
-Each estimator is a part: an object built once per run (svrpo/parts.py) and handed to the
+Each estimator is a part: an object built once per run (svrpo/core/parts.py) and handed to the
 update, which calls `start` at the snapshot w~ of every outer iteration, then `estimate` once
 per inner step. All of them read the iteration's batch only, through `BatchGradients`:
 
@@ -32,15 +32,15 @@ from typing import Any, Protocol, runtime_checkable
 import torch
 
 from svrpo.config import Config, Surrogate
+from svrpo.core.lifecycle import Part
+from svrpo.core.objectives import SurrogateBatch, surrogate
+from svrpo.core.streams import RandomStreams
 from svrpo.fresh.sgd import FreshMinibatchGradient
 from svrpo.fresh.srvrpg import SrvrpgGradient
 from svrpo.fresh.stormpg import StormPgGradient
 from svrpo.fresh.svrpg import SvrpgGradient
-from svrpo.lifecycle import Part
-from svrpo.objectives import SurrogateBatch, surrogate
-from svrpo.parameters import flat_gradient, flat_parameters, set_flat_parameters
-from svrpo.policy import GaussianMlpPolicy
-from svrpo.streams import RandomStreams
+from svrpo.models.parameters import flat_gradient, flat_parameters, set_flat_parameters
+from svrpo.models.policy import GaussianMlpPolicy
 
 # indices -> mean over those rows of grad U_t at a fixed parameter vector; None = all N rows.
 SubsetGradient = Callable[[torch.Tensor | None], torch.Tensor]
@@ -101,7 +101,7 @@ class GradientEstimator(Protocol):
     True means the estimate at step j depends on the earlier inner steps (a recursion), so the
     probe measures a conditional mean squared error, not a variance (reports draw it apart).
     `state_dict` / `load_state_dict` carry what must survive a checkpoint between iterations
-    (svrpo.lifecycle.Part gives the empty defaults: subclass it).
+    (svrpo.core.lifecycle.Part gives the empty defaults: subclass it).
     """
 
     uses_minibatches: bool

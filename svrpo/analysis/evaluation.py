@@ -4,7 +4,7 @@ Episode k is reset with seed + k and driven by the policy's mean action (clipped
 to the action box, as in training), so the same checkpoint and seed always give the same
 returns, and `evaluate(run, n, config.seed + 1_000_003)` repeats the run's logged eval_return.
 
-Rendering happens in a child process (`python -m svrpo.evaluation`, see `record_video`):
+Rendering happens in a child process (`python -m svrpo.analysis.evaluation`, see `record_video`):
 MuJoCo picks its OpenGL backend from MUJOCO_GL when it is first imported, and a wrong value
 breaks the import, so only the child that renders gets it set.
 """
@@ -22,9 +22,9 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from svrpo import checkpoint
 from svrpo.config import Config
 from svrpo.errors import EvaluationError
+from svrpo.rundir import checkpoint
 from svrpo.sampling.envs import check_import_allowed, env_info, horizon, make_env, registered_id, scale_action
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 
@@ -101,14 +101,14 @@ def find_checkpoint(path: Path) -> Path:
 def load_policy(path: str | os.PathLike[str], allow_import: Collection[str] = ()) -> LoadedPolicy:
     """Rebuild the policy and normaliser of a run directory's latest checkpoint (or a .pt file).
 
-    The checkpoint is read with weights_only=True (svrpo.checkpoint.load): no pickled code runs.
+    The checkpoint is read with weights_only=True (svrpo.rundir.checkpoint.load): no pickled code runs.
     A task id of the form "module:Env" in it is refused (EnvError) unless the module is in
     `allow_import`: creating the env would import the module, running its code.
     """
     import torch
 
-    from svrpo.normalization import RunningMeanStd
-    from svrpo.policy import GaussianMlpPolicy
+    from svrpo.models.normalization import RunningMeanStd
+    from svrpo.models.policy import GaussianMlpPolicy
 
     path = Path(path)
     if path.is_dir():  # a run directory: its newest readable checkpoint, as `train --resume`
@@ -204,7 +204,7 @@ def record_video(path: Path, out: Path, episodes: int = 1, seed: int = 0,
                  size: tuple[int, int] = (480, 480), allow_import: Collection[str] = ()) -> Video:
     """Render deterministic episodes seed.. of the policy at `path` to an H.264 MP4 at `out`.
 
-    Runs `python -m svrpo.evaluation` with MUJOCO_GL set for that child only, trying the
+    Runs `python -m svrpo.analysis.evaluation` with MUJOCO_GL set for that child only, trying the
     user's MUJOCO_GL if set, else GL_BACKENDS in order. About 30 frames per second of
     simulated time are kept. EvaluationError (naming each backend's error) if none renders.
     """
@@ -216,7 +216,7 @@ def record_video(path: Path, out: Path, episodes: int = 1, seed: int = 0,
     user_choice = os.environ.get("MUJOCO_GL")
     errors = []
     for backend in (user_choice,) if user_choice else GL_BACKENDS:
-        command = [sys.executable, "-m", "svrpo.evaluation", str(path), str(out), str(episodes),
+        command = [sys.executable, "-m", "svrpo.analysis.evaluation", str(path), str(out), str(episodes),
                    str(seed), str(width), str(height), ",".join(allow_import)]
         child = subprocess.run(command, capture_output=True, text=True,
                                env={**os.environ, "MUJOCO_GL": backend})

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import torch
 
 from svrpo.config import Surrogate
-from svrpo.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
+from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
 
 
 @dataclass(frozen=True)

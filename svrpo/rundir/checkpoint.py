@@ -1,6 +1,6 @@
 """Checkpoint files: atomic writes, a format stamp, loads that never unpickle code, names,
 fallback to an older file, pruning. What a checkpoint holds is the run's business
-(svrpo.run.Run.state_dict / load_state_dict); this module only stores such dicts.
+(svrpo.core.run.Run.state_dict / load_state_dict); this module only stores such dicts.
 
 A checkpoint is a dict of tensors and plain Python values written with torch.save to a
 temporary file, fsynced, then renamed over the target: a crash leaves either the old or the
@@ -21,9 +21,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from svrpo.atomic import replace_atomically
 from svrpo.errors import CheckpointError, one_line
-from svrpo.parameters import nonfinite_tensors
+from svrpo.models.parameters import nonfinite_tensors
+from svrpo.rundir.atomic import replace_atomically
 
 __all__ = ["FORMAT", "CheckpointError", "checkpoint_path", "list_checkpoints", "load", "load_latest",
            "one_line", "prune", "remove_stale_temporaries", "save_atomic"]

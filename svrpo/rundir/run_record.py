@@ -13,8 +13,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from svrpo.atomic import write_text_atomic
 from svrpo.config import Config
+from svrpo.rundir.atomic import write_text_atomic
 
 CONFIG_FILE = "config.json"
 META_FILE = "run.json"

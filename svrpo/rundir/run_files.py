@@ -14,7 +14,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from svrpo.run_lock import LOCK_FILE
+from svrpo.rundir.run_lock import LOCK_FILE
 
 RUN_FILES = ("config.json", "run.json", "progress.csv", "train.log", "learning_curve.png",
              "config.json.tmp", "run.json.tmp", "progress.csv.tmp")

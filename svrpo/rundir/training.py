@@ -13,17 +13,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from svrpo import checkpoint
-from svrpo.algorithm import run_iteration
-from svrpo.atomic import write_text_atomic
 from svrpo.config import Config
+from svrpo.core.algorithm import run_iteration
+from svrpo.core.estimators import GradientEstimator
+from svrpo.core.run import Run, build_run
 from svrpo.errors import TrainingError
-from svrpo.estimators import GradientEstimator
-from svrpo.logging import RunLogger, truncate_progress
-from svrpo.run import Run, build_run
-from svrpo.run_files import claim_run_directory
-from svrpo.run_lock import exclusive_writer, record_holder
-from svrpo.run_record import write_config, write_meta
+from svrpo.rundir import checkpoint
+from svrpo.rundir.atomic import write_text_atomic
+from svrpo.rundir.logging import RunLogger, truncate_progress
+from svrpo.rundir.run_files import claim_run_directory
+from svrpo.rundir.run_lock import exclusive_writer, record_holder
+from svrpo.rundir.run_record import write_config, write_meta
 
 Callback = Callable[[dict[str, Any]], Any]
 """Called after every iteration with its progress.csv row; a falsy return stops the run."""
@@ -91,7 +91,7 @@ def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bo
     resume=True continues from the newest readable checkpoint in run_dir (an older one if the
     newest is damaged); progress.csv loses the rows logged after it, which are redone, so the
     file ends exactly as in an uninterrupted run. Otherwise run_dir must be new or empty, or
-    hold a run that overwrite=True replaces (svrpo.run_files.claim_run_directory: the same rule
+    hold a run that overwrite=True replaces (svrpo.rundir.run_files.claim_run_directory: the same rule
     as `svrpo train`; RunDirectoryError before anything is touched). Whatever stops the loop
     (Ctrl-C, dying workers, a bug), the last completed iteration is checkpointed before the
     exception leaves.

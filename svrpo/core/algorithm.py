@@ -1,4 +1,4 @@
-"""Algorithm 1: one outer iteration of a run (svrpo/run.py builds the run and owns its state).
+"""Algorithm 1: one outer iteration of a run (svrpo/core/run.py builds the run and owns its state).
 
 Per outer iteration (`run_iteration`, with DESIGN.md's decisions): sample exactly N steps with
 the anchor policy, compute GAE advantages with the current baseline, standardise them over the
@@ -21,16 +21,16 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
-from svrpo.advantages import STANDARDIZE_EPS, generalized_advantages, standardize
-from svrpo.baselines import explained_variance
+from svrpo.core.advantages import STANDARDIZE_EPS, generalized_advantages, standardize
+from svrpo.core.objectives import SurrogateBatch, old_log_prob
+from svrpo.core.run import Run, build_run, make_sampler
+from svrpo.core.update import UpdateStats, update_policy
 from svrpo.fresh.loop import update_policy_fresh
-from svrpo.objectives import SurrogateBatch, old_log_prob
-from svrpo.parameters import nonfinite_tensors
-from svrpo.policy import GaussianMlpPolicy
-from svrpo.run import Run, build_run, make_sampler
+from svrpo.models.baselines import explained_variance
+from svrpo.models.parameters import nonfinite_tensors
+from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.sampler import Batch
-from svrpo.update import UpdateStats, update_policy
 
 __all__ = ["IterationResult", "PreparedBatch", "Run", "UpdateOutcome", "build_run", "make_sampler",
            "run_iteration", "surrogate_batch", "update_and_refit"]

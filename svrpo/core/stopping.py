@@ -10,17 +10,17 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from svrpo.config import Config
-from svrpo.lifecycle import Part
+from svrpo.core.lifecycle import Part
 
 if TYPE_CHECKING:
-    from svrpo.estimators import BatchGradients
-    from svrpo.streams import RandomStreams
+    from svrpo.core.estimators import BatchGradients
+    from svrpo.core.streams import RandomStreams
 
 
 @runtime_checkable
 class StoppingRule(Protocol):
     """Asked after every inner step that reached the line search; a part with the
-    svrpo.lifecycle.Part methods (start, state_dict, load_state_dict)."""
+    svrpo.core.lifecycle.Part methods (start, state_dict, load_state_dict)."""
 
     def stop(self, step_accepted: bool) -> bool:
         """True to end the inner loop now (the update then reports stopped_early = 1)."""

@@ -1,0 +1,2 @@
+"""Reading finished runs: learning-curve plots and deterministic evaluation (and video).
+"""

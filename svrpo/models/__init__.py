@@ -1,0 +1,3 @@
+"""The learned models: the Gaussian MLP policy, the baselines (critics), the observation
+normaliser, and flat-parameter helpers.
+"""
