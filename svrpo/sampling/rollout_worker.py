@@ -18,6 +18,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from svrpo.sampling.batch_step import BatchStep, StepperName, make_stepper
 from svrpo.sampling.envs import get_env_state, make_env, scale_action, set_env_state
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.vector_step import VectorStep
@@ -65,6 +66,10 @@ class RolloutWorker:
     `first_cuts` (one length per env, see first_episode_cuts) truncates each env's first
     episode early; such a cut is a truncation like the time limit (bootstrapped), but the cut
     episode is not reported among the completed episodes, whose returns must be comparable.
+
+    `stepper` picks the physics stepper (batch_step.make_stepper): "auto" uses BatchStep for the
+    tasks where it was measured faster (batch_step.STEPPER_BY_TASK), VectorStep elsewhere;
+    both give bit-identical results, so the choice never changes what is sampled.
     """
 
     def __init__(
@@ -75,6 +80,7 @@ class RolloutWorker:
         worker_index: int = 0,
         max_episode_steps: int | None = None,
         first_cuts: Sequence[int] | None = None,
+        stepper: StepperName = "auto",
     ) -> None:
         self.env_id = env_id
         self.max_episode_steps = max_episode_steps
@@ -86,8 +92,9 @@ class RolloutWorker:
         self._high = np.asarray(space.high, dtype=np.float64)
         self._rng = np.random.default_rng(np.random.SeedSequence([seed, worker_index]))
         first = worker_index * num_envs
-        # The wrappers are bypassed while sampling (VectorStep); the time limit is applied here.
-        self._stepper = VectorStep(env_id, self.envs)
+        # The wrappers are bypassed while sampling (VectorStep, BatchStep); the time limit is
+        # applied here.
+        self._stepper: VectorStep | BatchStep = make_stepper(env_id, self.envs, stepper)
         spec = self.envs[0].spec
         assert spec is not None and spec.max_episode_steps is not None  # make_env sets a limit
         self._time_limit = int(spec.max_episode_steps)
@@ -213,6 +220,7 @@ class RolloutWorker:
         for env, elapsed in zip(self.envs, self._timestep.tolist(), strict=True):
             # Sampling bypasses the TimeLimit wrapper; keep its counter meaningful in the state.
             _set_elapsed_steps(env, elapsed)
+        self._stepper.store_envs()  # BatchStep's state is in its batch rows, not the envs' MjData
         return {
             "rng": self._rng.bit_generator.state,
             "observations": self._obs.copy(),
@@ -237,7 +245,8 @@ class RolloutWorker:
         limits = state.get("episode_limits", np.full(len(self.envs), self._time_limit))
         self._limit = np.array(limits, dtype=np.int64)
         # Restoring physics recomputes derived quantities (body positions) that a step would have
-        # left one substep stale; the saved positions keep the next reward bit-exact.
+        # left one substep stale; the saved positions keep the next reward bit-exact. (BatchStep
+        # also reloads its batch rows from the restored envs here.)
         self._stepper.set_positions(state.get("positions"))
 
     def close(self) -> None:
@@ -260,6 +269,7 @@ def worker_main(
     worker_index: int,
     max_episode_steps: int | None,
     first_cuts: Sequence[int] | None = None,
+    stepper: StepperName = "auto",
 ) -> None:
     """Process entry: build a RolloutWorker, then serve (command, args) requests until 'close'.
 
@@ -272,7 +282,7 @@ def worker_main(
     # Ctrl-C reaches the whole process group; the parent handles it and closes the workers.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
-        worker = RolloutWorker(env_id, num_envs, seed, worker_index, max_episode_steps, first_cuts)
+        worker = RolloutWorker(env_id, num_envs, seed, worker_index, max_episode_steps, first_cuts, stepper)
     except Exception:
         conn.send(("error", traceback.format_exc()))
         conn.close()

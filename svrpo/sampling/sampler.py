@@ -18,6 +18,7 @@ from typing import Any, NoReturn
 import numpy as np
 import torch
 
+from svrpo.sampling.batch_step import StepperName
 from svrpo.sampling.envs import env_info
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.rollout_worker import (
@@ -91,6 +92,8 @@ class Sampler:
     calls, so episodes continue from one batch into the next. With stagger=True the W * E envs'
     first episodes are cut at lengths spread over the horizon (rollout_worker.first_episode_cuts),
     so that batches cover the whole episode time axis.
+    `stepper` is the workers' physics stepper (rollout_worker.RolloutWorker); every choice gives
+    the same results, "vector" and "batch" exist for benchmarks and tests.
     """
 
     def __init__(
@@ -101,6 +104,7 @@ class Sampler:
         seed: int,
         max_episode_steps: int | None = None,
         stagger: bool = False,
+        stepper: StepperName = "auto",
     ) -> None:
         if num_workers < 0 or envs_per_worker < 1:
             raise ValueError(
@@ -121,7 +125,8 @@ class Sampler:
         self._conns: list[Connection] = []
         self._finalizer: weakref.finalize[..., Any]
         if num_workers == 0:
-            self._local = RolloutWorker(env_id, envs_per_worker, seed, 0, max_episode_steps, worker_cuts(0))
+            self._local = RolloutWorker(env_id, envs_per_worker, seed, 0, max_episode_steps, worker_cuts(0),
+                                        stepper)
             self._finalizer = weakref.finalize(self, self._local.close)
             return
         # Runs on close(), on garbage collection and at interpreter exit: no orphaned workers.
@@ -130,7 +135,7 @@ class Sampler:
         # multiprocessing's spawn: spawn re-imports the user's main script in every worker.
         environment = {**os.environ, **{name: "1" for name in THREAD_ENV_VARS}}
         for index in range(num_workers):
-            args = (env_id, envs_per_worker, seed, index, max_episode_steps, worker_cuts(index))
+            args = (env_id, envs_per_worker, seed, index, max_episode_steps, worker_cuts(index), stepper)
             proc = WorkerProcess(args, environment)
             self._procs.append(proc)
             self._conns.append(proc.connection)

@@ -205,6 +205,9 @@ class VectorStep:
             raise ValueError(f"positions of shape {positions.shape}, need {self._positions.shape}")
         self._positions = positions
 
+    def store_envs(self) -> None:
+        """Nothing to do: the envs' MjData are the state (BatchStep keeps it in batch rows)."""
+
     def step(self, indices: Sequence[int], controls: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Apply controls[j] to env indices[j] -> (observations (n, obs_dim) float64, rewards (n,)
         float64, terminated (n,) bool), as the unwrapped Gymnasium envs would return them."""
