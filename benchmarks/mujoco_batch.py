@@ -1,11 +1,12 @@
 """mujoco.batch (MuJoCo 4's thread-pooled batch API) as a sampler backend: bit-exactness and speed.
 
-Does not change the production sampler. `BatchStep` below has VectorStep's interface (step,
-reset, get_positions) but steps the E simulations with one `mujoco.batch.Batch` call per
-lockstep step (nstep = frame_skip, on nthread threads) instead of E `mj_step` calls from
-Python; the task logic (observation, reward, termination) is VectorStep's own batched NumPy
-code, and resets still go through Gymnasium (its noise generator), copying the reset env's
-integration state into the batch row. Ant and Humanoid read cfrc_ext, which Gymnasium computes
+`BatchStep` (svrpo/sampling/batch_step.py, written here first and since adopted by the rollout
+workers for the tasks in its STEPPER_BY_TASK) has VectorStep's interface (step, reset,
+get_positions) but steps the E simulations with one `mujoco.batch.Batch` call per lockstep step
+(nstep = frame_skip, on nthread threads) instead of E `mj_step` calls from Python; the task
+logic (observation, reward, termination) is VectorStep's own batched NumPy code, and resets
+still go through Gymnasium (its noise generator), copying the reset env's integration state
+into the batch row. Ant and Humanoid read cfrc_ext, which Gymnasium computes
 with `mj_rnePostConstraint` *after* `mj_step`, i.e. from the last RK4 stage's contacts: the
 batch cannot run that itself (a sensor that triggers it runs it at the substep's first stage,
 which measures 1e2-1e3 off), so for these tasks the batch is persistent and each simulation's
@@ -22,7 +23,8 @@ Per task:
       the same worker with VectorStep. Finally the physics-only replay below is compared with
       mujoco.rollout's replay of the same states (qpos, qvel after the last substep).
   (b) throughput, env steps/s, all alternating within each repeat, median over repeats:
-      - sampler: today's Sampler (workers = cores, 8 envs each: the defaults), as in
+      - sampler: the Sampler (workers = cores, 8 envs each: the defaults) with VectorStep in its
+        workers (stepper="vector": the sampler this benchmark was first run against), as in
         benchmarks/sampling_throughput.py;
       - physics: that script's reference, mujoco.rollout on one thread per core replaying the
         exact states, warm starts and controls the sampler recorded (svrpo.tools.bench.replay_states);
@@ -49,11 +51,10 @@ import os
 import statistics
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import mujoco
 import mujoco.batch
 import mujoco.rollout
@@ -61,6 +62,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
+from svrpo.sampling.batch_step import BatchStep  # noqa: E402
 from svrpo.sampling.envs import make_env, scale_action  # noqa: E402
 from svrpo.sampling.policy_snapshot import PolicySnapshot  # noqa: E402
 from svrpo.sampling.rollout_worker import RolloutWorker, WorkerChunk  # noqa: E402
@@ -74,91 +76,6 @@ _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CHUNK_FIELDS = ("observations", "actions", "rewards", "next_observations", "terminated",
                  "truncated", "segment_end", "timesteps", "episode_returns", "episode_lengths")
-
-
-class BatchStep:
-    """VectorStep's step/reset/positions over one mujoco.batch.Batch of len(envs) simulations.
-
-    The Gymnasium envs serve resets only (and as the holders of the task's parameters); while
-    sampling, their MjData are stale: the state lives in the batch rows.
-    """
-
-    def __init__(self, env_id: str, envs: Sequence[gym.Env], nthread: int,
-                 positions: np.ndarray | None = None) -> None:
-        logic = LOGIC[env_id]  # only the six tasks with batched logic
-        self.logic = logic
-        self.envs = list(envs)
-        self._bases: list[Any] = [env.unwrapped for env in self.envs]
-        base = self._bases[0]
-        self._model = base.model
-        self._frame_skip = int(base.frame_skip)
-        self._dt = base.dt
-        self._contact = logic.needs_contact_forces
-        # cfrc_ext after Gymnasium's step comes from mj_rnePostConstraint on the MjData as mj_step
-        # leaves it: only a persistent batch keeps that MjData, per simulation.
-        self.batch = mujoco.batch.Batch(self._model, nsim=len(self.envs), nthread=nthread,
-                                        persistent=self._contact)
-        self._qpos = self.batch.bind("qpos")
-        self._qvel = self.batch.bind("qvel")
-        self._ctrl = self.batch.bind("ctrl")
-        self._copies = [mujoco.MjData(self._model) for _ in self.envs] if self._contact else []
-        self._all = list(range(len(self.envs)))
-        for index in self._all:
-            self._load(index)
-        if positions is None:
-            positions = np.stack([self._read_position(i) for i in self._all])
-        self._positions = np.array(positions, dtype=np.float64)
-
-    @property
-    def batched(self) -> bool:
-        return True
-
-    def _load(self, index: int) -> None:
-        """Env index's MjData (just reset by Gymnasium) becomes its batch row."""
-        base = self._bases[index]
-        mujoco.mj_getState(base.model, base.data, self.batch.state[index], _INTEGRATION)
-
-    def _read_position(self, index: int) -> np.ndarray:
-        """The task position from env index's own MjData (valid right after its reset)."""
-        base = self._bases[index]
-        if self.logic.body_position is not None:
-            return self.logic.body_position(base, base.data)
-        return base.data.qpos[: self.logic.qpos_position].copy()
-
-    def reset(self, index: int, seed: int | None = None) -> np.ndarray:
-        observation, _ = self.envs[index].reset(seed=seed)
-        self._load(index)
-        self._positions[index] = self._read_position(index)
-        return np.asarray(observation, dtype=np.float64)
-
-    def get_positions(self) -> np.ndarray:
-        return self._positions.copy()
-
-    def qpos_qvel(self, indices: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
-        return self._qpos[list(indices)], self._qvel[list(indices)]
-
-    def step(self, indices: Sequence[int], controls: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        logic, count = self.logic, len(indices)
-        full = count == len(self.envs)
-        at: Any = slice(None) if full else list(indices)
-        self._ctrl[at] = controls
-        self.batch.step(None if full else np.asarray(indices, dtype=np.int32), nstep=self._frame_skip)
-        fields = {"qpos": self._qpos[at], "qvel": self._qvel[at]}
-        if self._contact:
-            copies = self._copies
-            for i in indices:
-                self.batch.get_data(i, copies[i])
-                mujoco.mj_rnePostConstraint(self._model, copies[i])
-            for name in logic.extra_fields:
-                fields[name] = np.stack([getattr(copies[i], name) for i in indices])
-            assert logic.body_position is not None
-            after = np.stack([logic.body_position(self._bases[i], copies[i]) for i in indices])
-        else:
-            after = fields["qpos"][:, : logic.qpos_position].copy()
-        velocity = (after - self._positions[at]) / self._dt
-        self._positions[at] = after
-        observations, rewards, terminated = logic.outcome(self._bases[0], fields, velocity, controls)
-        return observations, rewards, np.asarray(terminated, dtype=bool)
 
 
 def _max_diff(a: np.ndarray, b: np.ndarray) -> float:
@@ -244,12 +161,12 @@ def measure(env_id: str, steps: int, repeats: int, check_steps: int, envs_per_wo
     result["check_seconds"] = time.perf_counter() - tic
 
     counts = steps_per_env(steps, num_envs)
-    vector = RolloutWorker(env_id, num_envs, seed, 0)
+    vector = RolloutWorker(env_id, num_envs, seed, 0, stepper="vector")
     batched: dict[int, RolloutWorker] = {}
     for n in threads:
-        worker = RolloutWorker(env_id, num_envs, seed, 0)
-        stepper = BatchStep(env_id, worker.envs, n, positions=worker._stepper.get_positions())
-        worker._stepper = stepper  # type: ignore[assignment]  # the plug-in point (see BENCHMARKS.md)
+        worker = RolloutWorker(env_id, num_envs, seed, 0, stepper="vector")
+        # the worker's envs, just reset, with BatchStep on n threads (workers themselves use 1)
+        worker._stepper = BatchStep(env_id, worker.envs, n, positions=worker._stepper.get_positions())
         batched[n] = worker
     times: dict[str, list[float]] = {}
     cpu_times: dict[str, list[float]] = {}  # env steps per CPU second of this process
@@ -263,7 +180,7 @@ def measure(env_id: str, steps: int, repeats: int, check_steps: int, envs_per_wo
             cpu_times.setdefault(name, []).append(steps / (time.process_time() - cpu))
         return out
 
-    with Sampler(env_id, workers, envs_per_worker, seed) as sampler:
+    with Sampler(env_id, workers, envs_per_worker, seed, stepper="vector") as sampler:
         first = sampler.sample(snapshot, steps)  # warm-up; its transitions are the replayed ones
         states, warmstarts, controls, replay_exact = replay_states(env_id, first, num_envs, seed)
         env = make_env(env_id)
