@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -34,7 +35,10 @@ def _run_snippets(snippets: list[str], directory: Path, monkeypatch: pytest.Monk
     written to directory/NAME instead (a module the others import, as would spawned workers)."""
     monkeypatch.chdir(directory)
     monkeypatch.syspath_prepend(str(directory))
-    monkeypatch.setenv("PYTHONPATH", str(directory))  # for the spawned sampling workers
+    # For the spawned sampling workers, ahead of (not instead of) a PYTHONPATH that selects the
+    # svrpo under test: replacing it would make workers import another checkout's installed svrpo.
+    paths = [str(directory), os.environ.get("PYTHONPATH", "")]
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(path for path in paths if path))
     namespace: dict[str, object] = {"__name__": "readme"}
     for snippet in snippets:
         first, _, body = snippet.partition("\n")
