@@ -9,7 +9,7 @@ cores, 8 envs each), per task:
   - after:  Sampler(...) ("auto": BatchStep for the tasks in batch_step.STEPPER_BY_TASK);
   - physics: benchmarks/sampling_throughput.py's reference, mujoco.rollout on one thread per
     core replaying the states, warm starts and controls of the `before` sampler's first batch
-    (svrpo.bench.replay_states).
+    (svrpo.tools.bench.replay_states).
 
 Both samplers live side by side from the same seed and get the same sample() calls, so every
 batch must be equal field for field (checked: `bit_exact`). Each repeat times one sample() of
@@ -42,10 +42,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
-from svrpo.bench import machine_info, random_snapshot, replay_states  # noqa: E402
 from svrpo.sampling.batch_step import uses_batch_step  # noqa: E402
 from svrpo.sampling.envs import make_env  # noqa: E402
 from svrpo.sampling.sampler import Batch, Sampler  # noqa: E402
+from svrpo.tools.bench import machine_info, random_snapshot, replay_states  # noqa: E402
 
 TASKS = ["Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5"]
 _FIELDS = ("observations", "actions", "rewards", "next_observations", "terminated", "truncated",

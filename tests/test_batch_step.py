@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 import svrpo
-from svrpo.bench import random_snapshot
 from svrpo.config import make_preset
 from svrpo.sampling.batch_step import STEPPER_BY_TASK, BatchStep, make_stepper, uses_batch_step
 from svrpo.sampling.envs import make_env
 from svrpo.sampling.rollout_worker import RolloutWorker, WorkerChunk
 from svrpo.sampling.sampler import Sampler
 from svrpo.sampling.vector_step import VectorStep
+from svrpo.tools.bench import random_snapshot
 from tests.helpers import progress_rows, without_clock
 
 BATCH_TASKS = ["Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5"]
