@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import pickle
 from pathlib import Path
@@ -10,11 +12,13 @@ import numpy as np
 import pytest
 import torch
 
+from svrpo import cli
 from svrpo.config import make_preset
 from svrpo.core.algorithm import build_run
 from svrpo.rundir import checkpoint
 from svrpo.rundir.checkpoint import CheckpointError
 from svrpo.rundir.logging import RunLogger, read_progress, truncate_progress
+from tests.helpers import _tiny_train, progress_rows
 
 
 def _state(iteration: int) -> dict[str, object]:
@@ -196,3 +200,33 @@ def test_restore_refuses_other_task_or_shape_and_names_the_field(tmp_path: Path)
             run.load_state_dict({**state, "config": "{not json"}, tmp_path / "iter_000001.pt")
     finally:
         run.sampler.close()
+
+
+@pytest.mark.parametrize(("part", "value"), [("policy", math.nan), ("policy", math.inf),
+                                             ("normalizer", math.nan)])
+def test_checkpoint_with_non_finite_parameters_is_refused_and_older_one_used(
+        tmp_path: Path, part: str, value: float, capsys: pytest.CaptureFixture[str]) -> None:
+    """A checkpoint whose policy or normaliser holds NaN/inf is refused naming the tensor; resume
+    and evaluate fall back to the older good checkpoint (a NaN policy would skip every update and
+    still exit 0, and evaluate would print a return for it)."""
+    out = tmp_path / "run"
+    assert cli.main([*_tiny_train(out), "--steps", "300", "--checkpoint_every", "1",
+                     "--normalize_observations", "true"]) == 0
+    newest = checkpoint.list_checkpoints(out / "checkpoints")[0]
+    state = torch.load(newest, weights_only=True)
+    tensor = next(t for t in state[part].values() if isinstance(t, torch.Tensor) and t.is_floating_point())
+    tensor.view(-1)[0] = value
+    torch.save(state, newest)
+    with pytest.raises(checkpoint.CheckpointError, match=f"non-finite values in {part}\\."):
+        checkpoint.load(newest)
+    capsys.readouterr()
+    assert cli.main(["evaluate", str(out), "--episodes", "1"]) == 0
+    captured = capsys.readouterr()
+    assert "non-finite" in captured.err and "iter_000002.pt" in captured.out + captured.err
+    config = json.loads((out / "config.json").read_text())
+    (out / "config.json").write_text(json.dumps({**config, "total_steps": 400}))
+    assert cli.main(["train", "--resume", str(out), "--no-progress"]) == 0
+    assert "trying an older checkpoint" in capsys.readouterr().err
+    rows = progress_rows(out)
+    assert [row["iteration"] for row in rows] == ["1", "2", "3", "4"]
+    assert all(math.isfinite(float(row["entropy"])) for row in rows)

@@ -1,13 +1,16 @@
-"""Presets, one-field ablations, the paper's per-task settings, JSON round trips, validation."""
+"""Presets, one-field ablations, the paper's per-task settings, JSON round trips, validation, and
+any value of any field: refused naming the field, or a config that round-trips."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
 import math
+import re
+import typing
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from svrpo.config import (
@@ -17,6 +20,7 @@ from svrpo.config import (
     ConfigError,
     coerce_field,
     differing_fields,
+    field_names,
     make_preset,
     validate,
 )
@@ -320,3 +324,62 @@ def test_modern_scale_is_sb3_contribs_trpo_and_svrpo_differs_only_in_its_inner_l
         "estimator": ("full", "svrg"), "minibatch_size": (1000, 512), "inner_steps": (1, 8)}
     assert svrpo.minibatch_size * svrpo.inner_steps == 2 * svrpo.batch_size
     assert make_preset("svrpo", "Ant-v5", "modern").hidden_sizes == (64, 64)  # sb3's, every task
+
+
+_VALID = json.loads(make_preset("svrpo", "Hopper-v5", "laptop").to_json())
+_FIELD_TYPES: dict[str, type | tuple[type, ...]] = {name: type(value) for name, value in _VALID.items()}
+# Optional fields (None by default: the task's time limit, a derived kl_step, no truncation, ...)
+# take the number type of their hint, or None.
+_FIELD_TYPES.update({name: (typing.get_args(hint)[0], type(None))
+                     for name, hint in typing.get_type_hints(Config).items()
+                     if type(None) in typing.get_args(hint)})
+_json_values = st.recursive(
+    st.none() | st.booleans() | st.integers(-10**20, 10**20) | st.floats() | st.text(max_size=10),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=4), inner, max_size=2),
+    max_leaves=4,
+)
+# What a command line sends: strings, including numbers, lists and special values.
+_cli_values = st.sampled_from(
+    ["0", "1", "-1", "2.5", "1e-3", "1e400", "nan", "-inf", "true", "no", "64,64", "64 64", "8,", "",
+     "abc", "svrg", "full", "identity", "loglik", "iterate", "mlp", "1_000"]
+) | st.integers(-3, 100_000).map(str)
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(name=st.sampled_from(field_names()), value=_json_values | _cli_values)
+def test_any_field_value_is_refused_naming_the_field_or_round_trips(name: str, value: object) -> None:
+    """One field of a valid config set to anything (from JSON or the command line): either a
+    ConfigError whose message names the field, or a config of the right types that survives
+    config.json unchanged."""
+    try:
+        config = Config.from_dict({**_VALID, name: value})
+    except ConfigError as error:
+        assert re.search(rf"\b{name}\b", str(error)), str(error)  # \b: batch_size is not minibatch_size
+        assert "\n" not in str(error)
+        return
+    kept = getattr(config, name)
+    assert isinstance(kept, _FIELD_TYPES[name] if _FIELD_TYPES[name] is not list else tuple)
+    if isinstance(kept, float):
+        assert math.isfinite(kept)
+    assert Config.from_json(config.to_json()) == config
+
+
+@settings(max_examples=100, deadline=None)
+@given(name=st.text(min_size=1, max_size=15).filter(lambda n: n not in _VALID))
+def test_unknown_field_names_are_refused_by_name(name: str) -> None:
+    with pytest.raises(ConfigError, match="unknown config field") as error:
+        coerce_field(name, "1")
+    assert f"'{name}'" in str(error.value)
+
+
+@pytest.mark.parametrize("value", ["inf", "1e400", [float("inf")]])
+def test_infinite_layer_width_is_a_config_error(value: object) -> None:
+    with pytest.raises(ConfigError, match="hidden_sizes"):
+        coerce_field("hidden_sizes", value)
+
+
+@pytest.mark.parametrize(("name", "value"), [("seed", -1), ("cg_residual_tol", "nan"), ("cg_damping", "inf"),
+                                             ("baseline_lr", "inf")])
+def test_negative_seed_and_non_finite_numbers_are_config_errors(name: str, value: object) -> None:
+    with pytest.raises(ConfigError, match=name):
+        Config.from_dict({**_VALID, name: value})

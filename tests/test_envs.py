@@ -1,13 +1,17 @@
-"""Tests for svrpo.sampling.envs: construction errors, env_info, action scaling, exact state restore."""
+"""Tests for svrpo.sampling.envs: construction errors, env_info, action scaling, exact state restore,
+unbounded actions, and a 'module:Env' id read from a file that is imported only when allowed."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
+from svrpo import cli
 from svrpo.sampling.envs import (
     DEFAULT_HORIZON,
     EnvError,
@@ -180,3 +184,56 @@ def test_non_mujoco_box_task_state_round_trip_is_bit_exact(env_id: str) -> None:
             np.testing.assert_array_equal(left, right)
     source.close()
     target.close()
+
+
+class _UnboundedActions(gym.Env):  # type: ignore[type-arg]
+    observation_space = gym.spaces.Box(-1.0, 1.0, (2,))
+    action_space = gym.spaces.Box(-np.inf, np.inf, (1,))
+
+
+gym.register("SvrpoTestUnboundedActions-v0", entry_point=_UnboundedActions, max_episode_steps=10)
+
+
+def test_infinite_action_bounds_are_refused_in_one_line(tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    assert cli.main(["train", "--env", "SvrpoTestUnboundedActions-v0", "--out", str(out),
+                     "--num_workers", "0", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unbounded actions" in err[0], err
+    assert not out.exists()
+
+
+_MARKER_MODULE = '''
+import pathlib
+import gymnasium
+pathlib.Path(__file__).with_name("imported.marker").write_text("the module's code ran")
+gymnasium.register("SvrpoMarkerPendulum-v0",
+                   entry_point="gymnasium.envs.mujoco.inverted_pendulum_v5:InvertedPendulumEnv",
+                   max_episode_steps=50)
+'''
+
+
+def test_a_file_naming_a_module_task_imports_nothing_unless_allowed(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """`svrpo evaluate FILE` and `train --resume` read the task id from the file; a 'module:Env'
+    id there must not import the module (its import-time code runs) unless the user says so."""
+    (tmp_path / "svrpo_marker_env.py").write_text(_MARKER_MODULE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    marker, out = tmp_path / "imported.marker", tmp_path / "run"
+    env = "svrpo_marker_env:SvrpoMarkerPendulum-v0"
+    assert cli.main(["train", "--preset", "trpo", "--env", env, "--steps", "200", "--batch_size", "100",
+                     "--num_workers", "0", "--envs_per_worker", "1", "--eval_every", "0", "--out", str(out),
+                     "--no-progress"]) == 0  # named on the command line: imported
+    assert marker.exists()
+    marker.unlink()
+    sys.modules.pop("svrpo_marker_env")
+    capsys.readouterr()
+    for command in (["evaluate", str(out), "--episodes", "1"],
+                    ["train", "--resume", str(out), "--no-progress"]):
+        assert cli.main(command) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--allow-import svrpo_marker_env" in err[0], err
+        assert not marker.exists()
+    assert cli.main(["evaluate", str(out), "--episodes", "1", "--allow-import", "svrpo_marker_env"]) == 0
+    assert marker.exists()

@@ -1,5 +1,5 @@
-"""`svrpo evaluate`: deterministic returns that repeat the run's own logged evaluation, and an
-MP4 that decodes to the right number and size of frames."""
+"""`svrpo evaluate`: deterministic returns that repeat the run's own logged evaluation, an MP4
+that decodes to the right number and size of frames, and bad input refused before evaluating."""
 
 from __future__ import annotations
 
@@ -11,10 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from svrpo import cli
 from svrpo.analysis.evaluation import EvaluationError, evaluate, find_checkpoint, load_policy
 from svrpo.cli import main
 from svrpo.config import make_preset
 from svrpo.rundir.training import train
+from tests.helpers import _tiny_train
 
 EVAL_SEED_OFFSET = 1_000_003  # algorithm.run_iteration evaluates with seed config.seed + this
 
@@ -106,3 +108,18 @@ def test_video_reports_a_broken_gl_backend_in_one_line(
     with pytest.raises(EvaluationError, match="MUJOCO_GL=no-such-backend"):
         record_video(run_dir, tmp_path / "clip.mp4", size=(64, 48))
     assert not (tmp_path / "clip.mp4").exists()
+
+
+def test_evaluate_refuses_a_negative_seed_and_an_unwritable_video_before_evaluating(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    assert cli.main(_tiny_train(out)) == 0
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    capsys.readouterr()
+    for extra in (["--seed", "-1"], ["--video", str(a_file / "v.mp4")], ["--video", str(tmp_path)]):
+        assert cli.main(["evaluate", str(out), "--episodes", "1", *extra]) == 2
+        captured = capsys.readouterr()
+        lines = captured.err.strip().splitlines()
+        assert len(lines) == 1 and "Traceback" not in captured.err, lines
+        assert "return" not in captured.out  # refused before the evaluation ran

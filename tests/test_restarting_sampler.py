@@ -1,15 +1,28 @@
-"""RestartingSampler on fake samplers: what it restores, repeats, reports and gives up on."""
+"""RestartingSampler on fake samplers: what it restores, repeats, reports and gives up on; and on
+real sampling workers SIGKILLed in a run: replaced with the run unchanged, or, when they keep
+dying, a clear stop that a resume continues losing nothing."""
 
 from __future__ import annotations
 
+import itertools
+import os
+import signal
+import threading
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
+from svrpo import cli
 from svrpo.errors import TrainingError
+from svrpo.rundir import checkpoint
+from svrpo.rundir.training import train
+from svrpo.sampling import restarting
 from svrpo.sampling.restarting import RestartingSampler, SamplerGaveUpError
-from svrpo.sampling.sampler import WorkerDiedError
+from svrpo.sampling.sampler import Sampler, WorkerDiedError
+from tests.helpers import CONFIG, _assert_same_run, _cli_args
 
 
 class FakeSampler:
@@ -86,3 +99,59 @@ def test_workers_that_keep_dying_give_up_with_a_training_error() -> None:
         sampler.sample(None, 10)  # type: ignore[arg-type]
     assert isinstance(error.value, TrainingError)
     assert len(calls) == 3 and len(sampler.warnings) == 2 and FakeSampler.built[-1].closed
+
+
+def _killing(original: Callable[..., Any], calls_to_hit: Callable[[int], bool],
+             mid_call: bool) -> Callable[..., Any]:
+    """Sampler method wrapper that SIGKILLs the last worker on the chosen calls: during the call
+    (mid_call, from another thread) or just before it."""
+    counter = itertools.count(1)
+
+    def wrapped(self: Sampler, *args: Any, **kwargs: Any) -> Any:
+        if not calls_to_hit(next(counter)):
+            return original(self, *args, **kwargs)
+        victim = self._procs[-1]
+        assert victim.pid is not None
+        if not mid_call:
+            os.kill(victim.pid, signal.SIGKILL)
+            victim.join(timeout=30)
+            return original(self, *args, **kwargs)
+        killer = threading.Timer(0.01, os.kill, (victim.pid, signal.SIGKILL))
+        killer.start()
+        try:
+            return original(self, *args, **kwargs)
+        finally:  # dead before the caller goes on, however fast the call was
+            killer.join()
+            victim.join(timeout=30)
+
+    return wrapped
+
+
+def test_dead_workers_are_replaced_and_the_run_is_unchanged(reference: Path, tmp_path: Path,
+                                                            monkeypatch: pytest.MonkeyPatch,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """A worker killed while sampling iteration 3, another before evaluating it (eval_every = 3)."""
+    monkeypatch.setattr(Sampler, "sample", _killing(Sampler.sample, lambda n: n == 3, mid_call=True))
+    monkeypatch.setattr(Sampler, "evaluate", _killing(Sampler.evaluate, lambda n: n == 1, mid_call=False))
+    run = train(CONFIG, tmp_path / "run", show_progress=False)
+    assert run.sampler.restarts == 2
+    err = capsys.readouterr().err
+    assert err.count("iteration 3: sampling worker 1") == 2  # sampling, then evaluating iteration 3
+    assert "restarting the sampling workers from the last recorded state" in err
+    _assert_same_run(tmp_path / "run", reference)
+
+
+def test_workers_that_keep_dying_stop_the_run_clearly_then_resume_loses_nothing(
+        reference: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(restarting, "MAX_RESTARTS", 1)
+    monkeypatch.setattr(Sampler, "sample", _killing(Sampler.sample, lambda call: call >= 3, mid_call=False))
+    run_dir = tmp_path / "run"
+    assert cli.main(_cli_args(run_dir, checkpoint_every=100)) == 1
+    err = capsys.readouterr().err
+    assert "svrpo train: error: sampling workers died 2 times in a row in iteration 3; giving up" in err
+    assert f"resume with: svrpo train --resume {run_dir}" in err and "Traceback" not in err
+    assert [p.name for p in checkpoint.list_checkpoints(run_dir / "checkpoints")] == ["iter_000002.pt"]
+    monkeypatch.undo()
+    assert cli.main(["train", "--resume", str(run_dir), "--no-progress"]) == 0
+    _assert_same_run(run_dir, reference)
