@@ -294,3 +294,39 @@ def test_staggered_sampler_resumes_bit_exactly_during_the_first_episodes() -> No
         for batch in expected:
             _assert_equal_batches(restored.sample(SWIMMER, 800), batch)
     assert int(expected[0].truncated.sum()) >= 1  # the cuts happened after the saved state
+
+
+def test_workers_start_from_the_parents_svrpo_whatever_pythonpath_says(tmp_path: Path) -> None:
+    """A worker interpreter imports svrpo before it receives the parent's sys.path: its
+    environment puts the parent's package first, ahead of a PYTHONPATH naming another svrpo."""
+    import svrpo
+    from svrpo.sampling import worker_process
+    from svrpo.sampling.worker_process import worker_environment
+
+    other = tmp_path / "other"
+    (other / "svrpo").mkdir(parents=True)
+    (other / "svrpo" / "__init__.py").write_text("")  # another checkout's (or install's) svrpo
+    base = {**os.environ, "PYTHONPATH": str(other)}
+    probe = [sys.executable, "-c", "import svrpo; print(svrpo.__file__)"]
+    plain = subprocess.run(probe, env=base, capture_output=True, text=True, check=True, cwd=tmp_path)
+    assert plain.stdout.strip() == str(other / "svrpo" / "__init__.py")  # the trap
+    ours = subprocess.run(probe, env=worker_environment(base), capture_output=True, text=True,
+                          check=True, cwd=tmp_path)
+    assert Path(ours.stdout.strip()).resolve() == Path(svrpo.__file__).resolve()
+    assert worker_environment(base)["PYTHONPATH"].split(os.pathsep)[1:] == [str(other)]
+
+    # ... and a WorkerProcess is started with that environment.
+    started: list[dict[str, str]] = []
+
+    class Refused(Exception):
+        pass
+
+    def fake_popen(*args: object, env: dict[str, str], **kwargs: object) -> None:
+        started.append(env)
+        raise Refused
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(worker_process.subprocess, "Popen", fake_popen)
+        with pytest.raises(Refused):
+            worker_process.WorkerProcess((), base)
+    assert started == [worker_environment(base)]

@@ -33,6 +33,16 @@ def process_cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # fields 14, 15 of stat
 
 
+def worker_environment(base: Mapping[str, str]) -> dict[str, str]:
+    """`base` with the directory holding this process's svrpo package first on PYTHONPATH, so
+    that the worker interpreter starts from the same svrpo as its parent (it imports
+    svrpo.sampling.worker_process before it receives the parent's sys.path): without it, a parent
+    run from one checkout could start workers from another installed svrpo."""
+    package_root = str(Path(__file__).resolve().parents[2])
+    paths = [package_root, *(p for p in base.get("PYTHONPATH", "").split(os.pathsep) if p)]
+    return {**base, "PYTHONPATH": os.pathsep.join(dict.fromkeys(paths))}
+
+
 class WorkerProcess:
     """A started worker interpreter with the part of multiprocessing.Process the Sampler uses
     (pid, is_alive, join, exitcode, terminate, kill), and the parent's end of its socket."""
@@ -42,7 +52,7 @@ class WorkerProcess:
         child_fd = child_end.fileno()
         self._popen = subprocess.Popen(
             [sys.executable, "-m", "svrpo.sampling.worker_process", str(child_fd)],
-            pass_fds=(child_fd,), env=dict(environment), stdin=subprocess.DEVNULL,
+            pass_fds=(child_fd,), env=worker_environment(environment), stdin=subprocess.DEVNULL,
         )
         child_end.close()  # only the child may hold its end: then a dead child reads as EOF here
         self.connection = Connection(parent_end.detach())
