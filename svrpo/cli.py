@@ -116,7 +116,7 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
 
     env_info(config.env_id, config.max_episode_steps)  # fail before anything is written
     if config.total_steps % config.steps_per_iteration:
-        what = "batch_size" if not config.fresh_samples else "the steps of an iteration, N + (J - 1) m,"
+        what = "batch_size" if not config.fresh_samples else "the steps of an iteration (N + (J - 1) m)"
         print(f"note: total_steps is not a multiple of {what}; running {config.iterations} "
               f"iterations = {config.iterations * config.steps_per_iteration} steps", file=sys.stderr)
     if args.resume is None:
