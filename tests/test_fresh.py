@@ -315,12 +315,16 @@ def test_every_accepted_fresh_step_is_inside_both_balls_on_its_fresh_states() ->
     run.parts = dataclasses.replace(run.parts, line_search=recording_search)
     rejections = 0
     try:
+        kls = []
         for _ in range(3):
-            rejections += run_iteration(run).progress_row()["budget_rejections"]
+            row = run_iteration(run).progress_row()
+            rejections += row["budget_rejections"]
+            kls.append(row["mean_kl"])
     finally:
         run.sampler.close()
     later = [entry for entry in accepted if entry[0].also_within]
     assert later and rejections > 0  # fresh steps were accepted, and the budget rejected trials
+    assert all(kl <= config.max_kl * (1 + 1e-6) for kl in kls)  # on the snapshot states too
     probe = copy.deepcopy(run.policy)
     for kl_bound, observations, point in accepted:
         set_flat_parameters(probe, point)
@@ -389,3 +393,41 @@ def test_the_recursions_carry_the_last_point_and_estimate(name: str) -> None:
     expected = (srvrpg_gradient(value, second.at_current(), second.at(ITERATE)) if name == "srvrpg"
                 else stormpg_gradient(value, second.at_current(), second.at(ITERATE), 0.3))
     assert torch.equal(estimator.estimate_fresh(second), expected)
+
+
+def test_the_budget_is_also_held_on_the_snapshot_states() -> None:
+    """A fresh step's trial within the budget on its fresh states but not on the N snapshot
+    states is rejected (KL = inf, counted); with room on both it is judged as before. The
+    iterate anchor has no budget and is not checked."""
+    from svrpo.core.objectives import old_log_prob
+    from svrpo.core.update import FullBatchEvaluator
+    from svrpo.fresh.loop import FreshBatchEvaluator
+    from svrpo.models.policy import GaussianMlpPolicy
+    from svrpo.trust_region.anchors import IterateAnchor, KlBound
+
+    torch.manual_seed(0)
+    policy = GaussianMlpPolicy(3, 2, (8,))
+    sampling = copy.deepcopy(policy)
+
+    def batch(observations: torch.Tensor) -> SurrogateBatch:
+        actions = torch.randn(len(observations), 2)
+        log_prob, mean, log_std = old_log_prob(sampling, observations, actions)
+        return SurrogateBatch(observations, actions, torch.randn(len(observations)), log_prob, mean, log_std)
+
+    snapshot_batch, fresh_batch_ = batch(3.0 * torch.randn(64, 3)), batch(0.01 * torch.randn(16, 3))
+    with torch.no_grad():
+        policy.mean_net[0].weight.add_(0.3)  # moves the mean far more on the wide snapshot states
+    snapshot = FullBatchEvaluator(policy, snapshot_batch, "ratio")
+    fresh = FreshBatchEvaluator(policy, fresh_batch_, "ratio", snapshot)
+    log_std = fresh_batch_.old_log_std.expand_as(fresh_batch_.old_mean)
+    kl_fresh = fresh.kl(fresh_batch_.old_mean, log_std)
+    snapshot_log_std = snapshot_batch.old_log_std.expand_as(snapshot_batch.old_mean)
+    kl_snapshot = snapshot.kl(snapshot_batch.old_mean, snapshot_log_std)
+    assert kl_fresh < kl_snapshot
+    between = (kl_fresh + kl_snapshot) / 2
+    _, kl = fresh.objective_and_kl(KlBound((fresh_batch_.old_mean, log_std), between))()
+    assert kl == math.inf and fresh.outside_further_balls == 1
+    _, kl = fresh.objective_and_kl(KlBound((fresh_batch_.old_mean, log_std), 2 * kl_snapshot))()
+    assert kl == pytest.approx(kl_fresh) and fresh.outside_further_balls == 1
+    iterate = IterateAnchor(between).bound(fresh_batch_, policy)
+    assert math.isfinite(fresh.objective_and_kl(iterate)()[1])
