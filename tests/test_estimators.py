@@ -19,15 +19,14 @@ from svrpo.core.estimators import (
     PageGradient,
     SarahGradient,
     StormGradient,
-    SubsetGradient,
     SvrgGradient,
     VarianceDiagnostic,
     estimator_variances,
     sarah_gradient,
     storm_gradient,
-    subset_gradient,
     svrg_gradient,
 )
+from svrpo.core.gradients import SubsetGradient, subset_gradient
 from svrpo.core.objectives import SurrogateBatch, old_log_prob, per_sample_surrogate, surrogate
 from svrpo.core.parts import estimator_for
 from svrpo.models.parameters import flat_parameters, set_flat_parameters

@@ -24,69 +24,20 @@ object with the `GradientEstimator` methods (see docs/estimators.md).
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
 import torch
 
-from svrpo.config import Config, Surrogate
+from svrpo.config import Config
+from svrpo.core.gradients import BatchGradients
 from svrpo.core.lifecycle import Part
-from svrpo.core.objectives import SurrogateBatch, surrogate
 from svrpo.core.streams import RandomStreams
 from svrpo.fresh.sgd import FreshMinibatchGradient
 from svrpo.fresh.srvrpg import SrvrpgGradient
 from svrpo.fresh.stormpg import StormPgGradient
 from svrpo.fresh.svrpg import SvrpgGradient
-from svrpo.models.parameters import flat_gradient, flat_parameters, set_flat_parameters
-from svrpo.models.policy import GaussianMlpPolicy
-
-# indices -> mean over those rows of grad U_t at a fixed parameter vector; None = all N rows.
-SubsetGradient = Callable[[torch.Tensor | None], torch.Tensor]
-
-
-def subset_gradient(policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> SubsetGradient:
-    """indices -> grad of mean_{t in I} U_t at the policy's parameters when called (None: all rows)."""
-
-    def gradient(indices: torch.Tensor | None) -> torch.Tensor:
-        rows = batch if indices is None else batch.subset(indices)
-        return flat_gradient(surrogate(policy, rows, kind), policy)
-
-    return gradient
-
-
-class BatchGradients:
-    """Mini-batch gradients of the surrogate on one iteration's batch, at three kinds of point.
-
-    `at_current` differentiates at the live inner iterate w_j (the policy the update moves),
-    `at_snapshot` at w~ (frozen when this object is built), `at` at any flat parameter vector
-    (e.g. w_{j-1}, for the recursive estimators). `snapshot_full` is g~ = grad U(w~) on all N
-    rows, computed once.
-    """
-
-    def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> None:
-        self.policy = policy
-        """The live policy (its parameters are the inner iterate w_j)."""
-        self.batch = batch
-        """The iteration's batch."""
-        self._snapshot_policy = copy.deepcopy(policy)  # w~: frozen for the whole iteration
-        self._scratch_policy: GaussianMlpPolicy | None = None  # built on the first `at`
-        self._batch, self._kind = batch, kind
-        self.at_current = subset_gradient(policy, batch, kind)
-        self.at_snapshot = subset_gradient(self._snapshot_policy, batch, kind)
-        self.snapshot_full = self.at_snapshot(None)
-
-    def current_point(self) -> torch.Tensor:
-        """w_j as a flat copy (unaffected by later in-place moves of the policy)."""
-        return flat_parameters(self.policy)
-
-    def at(self, point: torch.Tensor, indices: torch.Tensor | None) -> torch.Tensor:
-        """grad of mean_{t in I} U_t at the flat parameters `point`."""
-        if self._scratch_policy is None:
-            self._scratch_policy = copy.deepcopy(self._snapshot_policy)
-        set_flat_parameters(self._scratch_policy, point)
-        return subset_gradient(self._scratch_policy, self._batch, self._kind)(indices)
 
 
 @runtime_checkable

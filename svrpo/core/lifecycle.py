@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from svrpo.core.estimators import BatchGradients
+    from svrpo.core.gradients import BatchGradients
 
 
 class Part:

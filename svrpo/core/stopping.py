@@ -13,7 +13,7 @@ from svrpo.config import Config
 from svrpo.core.lifecycle import Part
 
 if TYPE_CHECKING:
-    from svrpo.core.estimators import BatchGradients
+    from svrpo.core.gradients import BatchGradients
     from svrpo.core.streams import RandomStreams
 
 

@@ -17,7 +17,7 @@ from svrpo.core.lifecycle import Part
 from svrpo.fresh.gradients import FreshGradients
 
 if TYPE_CHECKING:
-    from svrpo.core.estimators import BatchGradients
+    from svrpo.core.gradients import BatchGradients
 
 
 @runtime_checkable

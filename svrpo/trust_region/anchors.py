@@ -22,7 +22,7 @@ from svrpo.models.parameters import flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
 
 if TYPE_CHECKING:
-    from svrpo.core.estimators import BatchGradients
+    from svrpo.core.gradients import BatchGradients
     from svrpo.core.streams import RandomStreams
 
 Gaussian = tuple[torch.Tensor, torch.Tensor]

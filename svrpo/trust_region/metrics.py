@@ -18,7 +18,7 @@ from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.trust_region.conjugate_gradient import CgResult, conjugate_gradient
 
 if TYPE_CHECKING:
-    from svrpo.core.estimators import BatchGradients
+    from svrpo.core.gradients import BatchGradients
 
 MatVec = Callable[[torch.Tensor], torch.Tensor]
 Direction = tuple[torch.Tensor, CgResult | None]
