@@ -1,0 +1,125 @@
+"""benchmarks/screening_report.py: the protocols' selection rules, applied to runs built by hand,
+and its wiring to the committed protocol specs."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+from svrpo.config import make_preset
+from svrpo.experiments.specs import load_spec
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _script() -> ModuleType:
+    path = ROOT / "benchmarks" / "screening_report.py"
+    spec = importlib.util.spec_from_file_location("screening_report", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["screening_report"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_select_takes_the_highest_and_breaks_ties_by_the_protocol_order() -> None:
+    select = _script().select
+    assert select({"a": 0.5, "b": 0.9, "c": 0.7}, ["a", "b", "c"]) == "b"
+    # b and c within 0.01 of the best (c): the earlier of them in the order wins.
+    assert select({"a": 0.5, "b": 0.895, "c": 0.9}, ["a", "b", "c"]) == "b"
+    assert select({"a": 0.5, "b": 0.889, "c": 0.9}, ["a", "b", "c"]) == "c"
+
+
+def test_two_significant_digits() -> None:
+    rounded = _script().two_significant
+    assert rounded(0.01849) == 0.018
+    assert rounded(0.0396) == 0.04
+    assert rounded(0.1234) == 0.12
+
+
+def _write_run(run_dir: Path, env_id: str, preset: str, experiment: str, seed: int,
+               returns: list[float], kl: list[float], finished: bool = True) -> None:
+    """A run directory as a sweep leaves it: config.json, run.json, progress.csv, and the final
+    checkpoint's file when finished (the report only checks that it exists)."""
+    iterations = len(returns)
+    config = make_preset(preset, env_id, "modern").replace(seed=seed, total_steps=2048 * iterations)
+    run_dir.mkdir(parents=True)
+    (run_dir / "config.json").write_text(config.to_json())
+    meta = {"preset": preset, "scale": "modern", "experiment": experiment}
+    (run_dir / "run.json").write_text(json.dumps(meta))
+    rows = ["iteration,env_steps,average_return,eval_return,mean_kl,cpu_learner,cpu_workers"]
+    for i, (r, k) in enumerate(zip(returns, kl, strict=True), start=1):
+        evaluation = r if i == iterations else ""
+        rows.append(f"{i},{2048 * i},{r},{evaluation},{k},1.0,2.0")
+    (run_dir / "progress.csv").write_text("\n".join(rows) + "\n")
+    (run_dir / "checkpoints").mkdir()
+    if finished:
+        (run_dir / "checkpoints" / f"iter_{iterations:06d}.pt").write_bytes(b"")
+
+
+def _screening(tmp_path: Path, finish_all: bool = True):  # type: ignore[no-untyped-def]
+    """Two tasks, seeds 0-2, 10 iterations. ref (trpo) ends at 100 + seed; vr-a at 150 + seed,
+    vr-b at 149.9 + seed (a tie with vr-a at the IQM's 0.01), sgd at 120 + seed. The first return
+    of every run is 0 (R0 = 0). mean_kl: vr-a 0.02 per iteration on both tasks."""
+    script = _script()
+    spec_dir, runs = tmp_path / "specs", tmp_path / "runs"
+    spec_dir.mkdir()
+    finals = {"ref": 100.0, "vr-a": 150.0, "vr-b": 149.9, "sgd": 120.0}
+    presets = {"ref": "trpo", "vr-a": "svrpo-budgeted", "vr-b": "svrpo-budgeted", "sgd": "svrpo-budgeted"}
+    for name, final in finals.items():
+        (spec_dir / f"{name}.yaml").write_text(
+            f"name: s-{name}\ntasks: [Hopper-v5, Walker2d-v5]\npresets: [{presets[name]}]\n"
+            "seeds: [0, 1, 2]\nscale: modern\n")
+        for task in ("Hopper-v5", "Walker2d-v5"):
+            for seed in range(3):
+                returns = [0.0] + [final + seed] * 9
+                last = finish_all or not (name == "sgd" and seed == 2)
+                _write_run(runs / f"s-{name}-modern" / task / presets[name] / f"seed{seed}", task,
+                           presets[name], f"s-{name}", seed, returns, [0.02] * 10, finished=last)
+    screening = script.Screening(
+        "test", tuple(finals), "ref", spec_dir / "ref.yaml", ("vr-a", "vr-b"),
+        {"vr-a": "sgd", "vr-b": "sgd"}, matched_kl=True, spec_dir=spec_dir)
+    return script, screening, runs
+
+
+def test_report_applies_the_rule_and_matches_trpo_to_the_kl_moved(tmp_path: Path) -> None:
+    """IQM normalised by ref: vr-a (150 + s) / (101) pooled, vr-b 0.001 lower per run: a tie at
+    0.01, so vr-a (first in the order) is chosen; its twin sgd; P(vr-a > sgd) = 1 on both tasks;
+    matched TRPO 0.02 (every run's median mean_kl)."""
+    script, screening, runs = _screening(tmp_path)
+    lines, summary = script.report(screening, runs, resamples=200)
+    decision = summary["decision"]
+    assert decision["chosen"] == "vr-a" and decision["twin"] == "sgd"
+    assert decision["matched_trpo_max_kl"] == 0.02
+    assert summary["twins"]["vr-a"]["value"] == 1.0
+    # IQM of vr-a: pooled (150, 151, 152) / 101 on both tasks, middle half -> 151/101.
+    assert decision["candidate_iqm"]["vr-a"] == pytest.approx(151 / 101)
+    assert summary["per_task"]["Hopper-v5"]["ref"]["final_return"] == pytest.approx([100, 101, 102])
+    assert "| Hopper-v5 | vr-a | 3 | 151.0 [148.5, 153.5] | 151.0 [148.5, 153.5] |" in "\n".join(lines)
+
+
+def test_report_refuses_an_incomplete_screening(tmp_path: Path) -> None:
+    script, screening, runs = _screening(tmp_path, finish_all=False)
+    with pytest.raises(ValueError, match="2 runs have not finished"):
+        script.report(screening, runs, resamples=50)
+
+
+@pytest.mark.parametrize("experiment", ["budgeted-trust-region", "fresh-samples"])
+def test_every_configuration_of_the_protocols_has_its_committed_spec(experiment: str) -> None:
+    """The script's lists name exactly the committed screening specs, and the reference's tasks
+    and seeds are the screening's."""
+    script = _script()
+    screening = script.SCREENINGS[experiment]
+    committed = {p.stem for p in screening.spec_dir.glob("*.yaml")}
+    assert set(screening.configs) - {screening.reference} == committed - {screening.reference}
+    assert set(screening.candidates) <= set(screening.configs)
+    assert set(screening.twins) == set(screening.candidates)
+    reference = load_spec(str(screening.reference_spec))
+    for name in screening.configs:
+        spec = load_spec(str(script.spec_path(screening, name)))
+        assert (spec.tasks, spec.seeds) == (reference.tasks, reference.seeds)
