@@ -43,9 +43,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
 from svrpo.sampling.batch_step import uses_batch_step  # noqa: E402
-from svrpo.sampling.envs import make_env  # noqa: E402
 from svrpo.sampling.sampler import Batch, Sampler  # noqa: E402
-from svrpo.tools.bench import machine_info, random_snapshot, replay_states  # noqa: E402
+from svrpo.tools.bench import machine_info, physics_replay, random_snapshot, replay_states  # noqa: E402
 
 TASKS = ["Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5"]
 _FIELDS = ("observations", "actions", "rewards", "next_observations", "terminated", "truncated",
@@ -69,12 +68,6 @@ def measure(env_id: str, steps: int, repeats: int, envs_per_worker: int, seed: i
         exact &= _equal(first, after.sample(snapshot, steps))
         states, warmstarts, controls, replay_exact = replay_states(
             env_id, first, workers * envs_per_worker, seed)
-        env = make_env(env_id)
-        base: Any = env.unwrapped
-        model, frame_skip = base.model, int(base.frame_skip)
-        env.close()
-        datas = [mujoco.MjData(model) for _ in range(workers)]
-        out = np.empty((len(states), frame_skip, states.shape[1]))
 
         def timed(name: str, call: Callable[[], Any], count: int) -> Any:
             sampler = samplers.get(name)
@@ -87,10 +80,7 @@ def measure(env_id: str, steps: int, repeats: int, envs_per_worker: int, seed: i
             return result
 
         with mujoco.rollout.Rollout(nthread=workers) as pool:
-            def physics() -> None:
-                pool.rollout(model, datas, states, controls, nstep=frame_skip,
-                             initial_warmstart=warmstarts, state=out)
-
+            physics = physics_replay(pool, env_id, states, warmstarts, controls, workers).run
             physics()  # warms up the pool
             for repeat in range(repeats):
                 order = ["before", "after"] if repeat % 2 == 0 else ["after", "before"]

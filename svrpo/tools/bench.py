@@ -117,6 +117,32 @@ def replay_states(
     return states, warmstarts, controls, exact
 
 
+@dataclasses.dataclass(frozen=True)
+class PhysicsReplay:
+    """Raw MuJoCo replaying recorded steps: `run()` steps every recorded state through the
+    task's frame_skip physics steps with its recorded control, on `pool`'s threads."""
+
+    frame_skip: int
+    run: Callable[[], None]
+
+
+def physics_replay(pool: mujoco.rollout.Rollout, env_id: str, states: np.ndarray, warmstarts: np.ndarray,
+                   controls: np.ndarray, threads: int) -> PhysicsReplay:
+    """The replay of replay_states' output with the task's own model, one MjData per thread."""
+    env = make_env(env_id)
+    base: Any = env.unwrapped
+    model, frame_skip = base.model, int(base.frame_skip)
+    env.close()
+    datas = [mujoco.MjData(model) for _ in range(max(threads, 1))]
+    out = np.empty((len(states), frame_skip, states.shape[1]))
+
+    def run() -> None:
+        pool.rollout(model, datas, states, controls, nstep=frame_skip, initial_warmstart=warmstarts,
+                     state=out)
+
+    return PhysicsReplay(frame_skip, run)
+
+
 def sampling_vs_physics(
     env_id: str,
     snapshot: PolicySnapshot,
@@ -139,18 +165,10 @@ def sampling_vs_physics(
         states, warmstarts, controls, exact = replay_states(
             env_id, first, max(workers, 1) * envs_per_worker, seed
         )
-        env = make_env(env_id)
-        base: Any = env.unwrapped
-        model, frame_skip = base.model, int(base.frame_skip)
-        env.close()
-        datas = [mujoco.MjData(model) for _ in range(nthread)]
-        out = np.empty((len(states), frame_skip, states.shape[1]))
         ours, physics, episodes = [], [], []
         with mujoco.rollout.Rollout(nthread=nthread) as pool:
-            rollout: Callable[[], None] = lambda: pool.rollout(  # noqa: E731
-                model, datas, states, controls, nstep=frame_skip,
-                initial_warmstart=warmstarts, state=out,
-            )
+            replay = physics_replay(pool, env_id, states, warmstarts, controls, nthread)
+            frame_skip, rollout = replay.frame_skip, replay.run
             rollout()  # warms up the thread pool
             for _ in range(repeats):
                 tic = time.perf_counter()
@@ -196,21 +214,15 @@ def sampling_cpu_efficiency(
         batch = Batch(**tensors, episode_returns=first.episode_returns,
                       episode_lengths=first.episode_lengths)
         states, warmstarts, controls, exact = replay_states(env_id, batch, envs, seed)
-        env = make_env(env_id)
-        base: Any = env.unwrapped
-        model, frame_skip = base.model, int(base.frame_skip)
-        env.close()
-        datas = [mujoco.MjData(model)]
-        out = np.empty((len(states), frame_skip, states.shape[1]))
         ours, physics = [], []
         with mujoco.rollout.Rollout(nthread=0) as pool:
+            replay = physics_replay(pool, env_id, states, warmstarts, controls, threads=1)
             for _ in range(repeats):
                 tic = time.process_time()
                 worker.sample(snapshot, counts)
                 ours.append(steps / (time.process_time() - tic))
                 tic = time.process_time()
-                pool.rollout(model, datas, states, controls, nstep=frame_skip,
-                             initial_warmstart=warmstarts, state=out)
+                replay.run()
                 physics.append(len(states) / (time.process_time() - tic))
     finally:
         worker.close()
