@@ -463,6 +463,15 @@ MUTANTS = [
            "percent_of_trpo_wall=100.0 * seconds"
            " / float(_wall_curve(wall[task][preset], curves.shape[1])[-1]))",
            "wall-clock as a share of the preset's own total, not TRPO's", STATISTICS_TESTS),
+    Mutant("stats-cpu-reach-of-trpo-not-the-preset", "svrpo/experiments/table.py",
+           "first_reaching(_cumulative_cpu(cpu[task][preset],",
+           "first_reaching(_cumulative_cpu(cpu[task][REFERENCE_PRESET],",
+           "the CPU time to TRPO's final read off TRPO's CPU, not the preset's", STATISTICS_TESTS),
+    Mutant("stats-cpu-per-iteration-not-cumulative", "svrpo/experiments/table.py",
+           "np.cumsum(run.values[:length].astype(np.float64))",
+           "run.values[:length].astype(np.float64)",
+           "the CPU time at the reaching iteration is that iteration's, not the sum up to it",
+           STATISTICS_TESTS),
 ]
 
 

@@ -85,3 +85,26 @@ def test_cpu_per_run_is_the_seed_median_of_summed_cpu_and_shown_when_recorded(tm
     [row] = summarize(returns, cpu=cpu)
     assert math.isnan(row.cpu_seconds_per_run)
     assert "CPU" not in write_markdown([row], tmp_path / "old.md", "t").read_text()
+
+
+def test_cpu_time_to_trpos_final_return_reads_the_cumulative_cpu_at_the_reaching_iteration(
+        tmp_path: Path) -> None:
+    """Four iterations (window 1). trpo finals 3 and 5: target 4; svrpo's seed mean 0, 4.5, 4.5,
+    4.5 reaches it at iteration 2. Cumulative CPU there: svrpo seeds 2+1 = 3 and 2+3 = 5, mean 4;
+    trpo's totals 4 and 6, mean 5: 4 / 5 = 80%. TRPO itself reaches at its last iteration: 100%."""
+    returns = {"T": {"svrpo": [_run("svrpo", 0, [0.0, 4.0, 4.0, 4.0]),
+                               _run("svrpo", 1, [0.0, 5.0, 5.0, 5.0])],
+                     "trpo": [_run("trpo", 0, [0.0, 1.0, 2.0, 3.0]), _run("trpo", 1, [0.0, 1.0, 2.0, 5.0])]}}
+    cpu = {"T": {"svrpo": [_run("svrpo", 0, [2.0, 1.0, 9.0, 9.0]), _run("svrpo", 1, [2.0, 3.0, 9.0, 9.0])],
+                 "trpo": [_run("trpo", 0, [1.0, 1.0, 1.0, 1.0]), _run("trpo", 1, [1.0, 1.0, 1.0, 3.0])]}}
+    rows = {row.preset: row for row in summarize(returns, cpu=cpu)}
+    assert rows["svrpo"].cpu_to_trpo_final_s == pytest.approx(4.0)
+    assert rows["svrpo"].percent_of_trpo_cpu == pytest.approx(80.0)
+    assert rows["trpo"].percent_of_trpo_cpu == pytest.approx(100.0)
+    markdown = write_markdown(list(rows.values()), tmp_path / "table.md", "t").read_text()
+    assert "| CPU time to it (% of TRPO's) | CPU time per run (median) |" in markdown
+    assert "| 80% (4 s) | 22 s |" in markdown  # svrpo's totals 21 and 23: median 22
+    # A seed with no CPU recorded: no figure (a cumulative sum past the gap would be too low).
+    cpu["T"]["svrpo"][1] = _run("svrpo", 1, [math.nan] * 4)
+    rows = {row.preset: row for row in summarize(returns, cpu=cpu)}
+    assert math.isnan(rows["svrpo"].percent_of_trpo_cpu)

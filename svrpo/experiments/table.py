@@ -79,6 +79,12 @@ class TableRow:
     cpu_seconds_per_run: float = math.nan
     """Median over seeds of a run's CPU seconds over its T iterations (progress.csv's cpu_learner +
     cpu_workers: the learner and its sampling workers, from the OS); NaN where not recorded."""
+    cpu_to_trpo_final_s: float = math.nan
+    """Seed-mean cumulative CPU seconds at the iteration where S(i) first reaches TRPO's final mean
+    return (NaN: not reached, no TRPO, or CPU not recorded)."""
+    percent_of_trpo_cpu: float = math.nan
+    """cpu_to_trpo_final_s / TRPO's seed-mean total CPU seconds x 100 (the cost other processes
+    on the machine disturb least)."""
 
 
 def t_interval(values: np.ndarray | Sequence[float], confidence: float = CONFIDENCE) -> tuple[float, float]:
@@ -146,7 +152,7 @@ def summarize(returns: Curves, variance: Curves | None = None, evals: Curves | N
     rows = []
     for task, presets in returns.items():
         reference = presets.get(REFERENCE_PRESET)
-        target, reference_steps, reference_wall = math.nan, math.nan, math.nan
+        target, reference_steps, reference_wall, reference_cpu = math.nan, math.nan, math.nan, math.nan
         improved = True
         if reference:
             steps, curves = smoothed_seeds(reference)
@@ -154,6 +160,8 @@ def summarize(returns: Curves, variance: Curves | None = None, evals: Curves | N
             improved = bool(target > untrained_return([run for runs in presets.values() for run in runs]))
             if wall is not None:
                 reference_wall = float(_wall_curve(wall[task][REFERENCE_PRESET], len(steps))[-1])
+            if cpu is not None:
+                reference_cpu = float(_cumulative_cpu(cpu[task][REFERENCE_PRESET], len(steps))[-1])
         for preset, runs in presets.items():
             steps, curves = smoothed_seeds(runs)
             finals = curves[:, -1]
@@ -167,6 +175,9 @@ def summarize(returns: Curves, variance: Curves | None = None, evals: Curves | N
                 extra.update(_final_eval(evals[task][preset]))
             if cpu is not None:
                 extra["cpu_seconds_per_run"] = cpu_per_run(cpu[task][preset], curves.shape[1])
+                spent = first_reaching(_cumulative_cpu(cpu[task][preset], curves.shape[1]), seed_mean, target)
+                if math.isfinite(spent) and math.isfinite(reference_cpu):
+                    extra.update(cpu_to_trpo_final_s=spent, percent_of_trpo_cpu=100.0 * spent / reference_cpu)
             if wall is not None:
                 seconds = first_reaching(_wall_curve(wall[task][preset], curves.shape[1]), seed_mean, target)
                 if math.isfinite(seconds):
@@ -190,6 +201,14 @@ def cpu_per_run(runs: Sequence[RunCurve], length: int) -> float:
     totals = [float(np.sum(run.values[:length].astype(np.float64))) for run in runs]
     totals = [total for total in totals if math.isfinite(total)]
     return float(np.median(totals)) if totals and len(totals) == len(runs) else math.nan
+
+
+def _cumulative_cpu(runs: Sequence[RunCurve], length: int) -> np.ndarray:
+    """Seed-mean cumulative CPU seconds per iteration over the first `length` iterations; NaN from
+    the first iteration any seed has none recorded (as cpu_per_run: a mean over the other seeds,
+    or a sum past the gap, would understate the cost)."""
+    return np.asarray(np.mean(np.stack([np.cumsum(run.values[:length].astype(np.float64)) for run in runs]),
+                              axis=0))
 
 
 def _wall_curve(runs: Sequence[RunCurve], length: int) -> np.ndarray:
@@ -270,6 +289,15 @@ def wall_text(row: TableRow) -> str:
     return f"{row.percent_of_trpo_wall:.0f}% ({row.wall_to_trpo_final_s:,.0f} s)"
 
 
+def cpu_reach_text(row: TableRow) -> str:
+    """'42% (1,234 s)' for CPU time to TRPO's final return, or as wall_text says why not."""
+    if not row.has_reference or not row.trpo_improved or math.isnan(row.steps_to_trpo_final):
+        return wall_text(row)
+    if math.isnan(row.percent_of_trpo_cpu):
+        return "not recorded"
+    return f"{row.percent_of_trpo_cpu:.0f}% ({row.cpu_to_trpo_final_s:,.0f} s)"
+
+
 def cpu_text(row: TableRow) -> str:
     """'1,234 s' or 'not recorded'."""
     return "not recorded" if math.isnan(row.cpu_seconds_per_run) else f"{row.cpu_seconds_per_run:,.0f} s"
@@ -283,14 +311,14 @@ def write_markdown(rows: Sequence[TableRow], path: Path, title: str) -> Path:
              "| task | preset | n (seeds) | steps | final return (95% CI) | "
              "final deterministic eval (95% CI) | samples to TRPO's final return (% of TRPO's) | "
              "wall-clock to it (% of TRPO's) | median variance ratio |"
-             + (" CPU time per run (median) |" if with_cpu else ""),
-             "|---|---|---|---|---|---|---|---|---|" + ("---|" if with_cpu else "")]
+             + (" CPU time to it (% of TRPO's) | CPU time per run (median) |" if with_cpu else ""),
+             "|---|---|---|---|---|---|---|---|---|" + ("---|---|" if with_cpu else "")]
     for row in rows:
         ratio = "" if math.isnan(row.median_variance_ratio) else f"{row.median_variance_ratio:.3g}"
         lines.append(f"| {row.task} | {row.preset} | {row.seeds} | {row.env_steps:,} | "
                      f"{final_text(row)} | {eval_text(row)} | "
                      f"{reach_text(row)} | {wall_text(row)} | {ratio} |"
-                     + (f" {cpu_text(row)} |" if with_cpu else ""))
+                     + (f" {cpu_reach_text(row)} | {cpu_text(row)} |" if with_cpu else ""))
     lines += ["", "Final return: per seed, the mean training average_return over the last 10% of "
               "iterations; mean over the n seeds with a 95% Student-t CI (mean +- t_{0.975, n-1} s / "
               "sqrt(n), s the seeds' sample standard deviation). Samples to TRPO's final return: "
@@ -301,9 +329,10 @@ def write_markdown(rows: Sequence[TableRow], path: Path, title: str) -> Path:
               "eval_return (mean action, 10 episodes, after the last iteration), with the same "
               "t-interval. Variance ratio: SVRG/SGD gradient variance at the probe step (< 1: SVRG "
               "reduces variance)."
-              + (" CPU time: the learner's and its sampling workers' CPU seconds over the run "
-                 "(progress.csv cpu_learner + cpu_workers), which other processes on the machine "
-                 "disturb far less than wall-clock." if with_cpu else ""), ""]
+              + (" CPU time: the learner's and its sampling workers' CPU seconds (progress.csv "
+                 "cpu_learner + cpu_workers), which other processes on the machine disturb far less "
+                 "than wall-clock; to TRPO's final return: the seed-mean cumulative CPU seconds at "
+                 "that iteration, as a percentage of TRPO's seed-mean total." if with_cpu else ""), ""]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines))
     return path
