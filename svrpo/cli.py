@@ -245,6 +245,24 @@ def _sweep_backend(args: argparse.Namespace) -> Backend:
     return RayBackend(address=args.address, max_retries=retries)
 
 
+def _parse_seed_option(text: str) -> int | list[int]:
+    """--seeds: N (seeds 0..N-1), A-B (A..B inclusive) or A,B,C; UsageError otherwise."""
+    try:
+        if "," in text:
+            return [int(part) for part in text.split(",")]
+        if "-" in text.strip("-"):
+            first, last = (int(part) for part in text.split("-"))
+            if last < first:
+                raise UsageError(f"--seeds {text}: the range ends before it starts")
+            return list(range(first, last + 1))
+        count = int(text)
+    except ValueError:
+        raise UsageError(f"--seeds takes N (seeds 0..N-1), A-B or A,B,C; got {text!r}") from None
+    if count < 1:
+        raise UsageError(f"--seeds must be >= 1; got {count}")
+    return count
+
+
 def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
     from svrpo.experiments import RunStatus, load_spec, plan, run_sweep, status
     from svrpo.experiments.backends import BackendError
@@ -252,10 +270,9 @@ def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
     overrides: dict[str, Any] = dict(_parse_overrides(extra))
     if args.steps is not None:
         overrides["total_steps"] = args.steps
-    if args.seeds is not None and args.seeds < 1:
-        raise UsageError(f"--seeds must be >= 1; got {args.seeds}")
+    seeds = None if args.seeds is None else _parse_seed_option(args.seeds)
     tasks = None if args.tasks is None else [task.strip() for task in args.tasks.split(",") if task.strip()]
-    spec = load_spec(args.spec).with_changes(args.scale, args.seeds, overrides, tasks)
+    spec = load_spec(args.spec).with_changes(args.scale, seeds, overrides, tasks)
     backend = _sweep_backend(args)
     root = Path(args.root)
     if args.backend == "ray":
@@ -396,7 +413,8 @@ def make_parser() -> argparse.ArgumentParser:
     )
     sweep.add_argument("spec", metavar="SPEC", help="figure1 | figure2 | figure3 | estimators | FILE.yaml")
     sweep.add_argument("--scale", default=None, choices=SCALES, help="default: the spec's (laptop)")
-    sweep.add_argument("--seeds", type=int, default=None, help="seeds 0..N-1 (default: the spec's, 5)")
+    sweep.add_argument("--seeds", default=None,
+                       help="N: seeds 0..N-1; A-B: seeds A..B; A,B,C: those seeds (default: the spec's)")
     sweep.add_argument("--tasks", default=None, metavar="A,B",
                        help="comma-separated task ids in place of the spec's (e.g. part of figure1)")
     sweep.add_argument("--root", default="runs", help="sweep root directory (default runs)")

@@ -270,3 +270,30 @@ def test_a_run_shared_by_two_experiments_is_copied_not_trained_again(tmp_path: P
     assert "copied" not in result.stdout + result.stderr
     assert "copied_from" not in (root / "third-laptop" / "InvertedPendulum-v5" / "svrpo" / "seed0"
                                  / "run.json").read_text()
+
+
+@pytest.mark.parametrize(("option", "seeds"), [("2", [0, 1]), ("100-102", [100, 101, 102]), ("3,7", [3, 7])])
+def test_sweep_seeds_option_takes_a_count_a_range_or_a_list(tmp_path: Path, option: str,
+                                                            seeds: list[int]) -> None:
+    """The confirmation runs of a protocol use seeds 100-109, one seed per pass (seed-major across
+    specs): --seeds names them as the user types them, in a subprocess as the user runs it."""
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY_YAML)
+    done = subprocess.run([sys.executable, "-m", "svrpo.cli", "sweep", str(spec), "--seeds", option,
+                           "--root", str(tmp_path / "runs"), "--dry-run"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    listed = sorted({int(line.split("/seed")[1].split()[0]) for line in done.stdout.splitlines()
+                     if line.startswith("new")})
+    assert listed == seeds
+
+
+@pytest.mark.parametrize("option", ["0", "x", "5-3", "1,,2"])
+def test_sweep_seeds_option_refuses_what_is_not_seeds(tmp_path: Path, option: str) -> None:
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY_YAML)
+    done = subprocess.run([sys.executable, "-m", "svrpo.cli", "sweep", str(spec), "--seeds", option,
+                           "--root", str(tmp_path / "runs"), "--dry-run"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert "--seeds" in done.stderr and "Traceback" not in done.stderr

@@ -66,10 +66,10 @@ class ExperimentSpec:
         """The complete config of one run of the grid (ConfigError if it cannot run)."""
         return make_preset(preset, task, self.scale).replace(seed=seed, **self.overrides)
 
-    def with_changes(self, scale: str | None = None, seeds: int | None = None,
+    def with_changes(self, scale: str | None = None, seeds: int | list[int] | None = None,
                      overrides: dict[str, Any] | None = None,
                      tasks: list[str] | None = None) -> ExperimentSpec:
-        """A copy with the command line's --scale, --seeds N (seeds 0..N-1), --tasks A,B and
+        """A copy with the command line's --scale, --seeds (N: seeds 0..N-1, or a list), --tasks A,B and
         --FIELD values. --tasks runs part of a figure (its runs land where the whole figure's
         would, so a later sweep of the whole figure only adds the missing tasks)."""
         changes: dict[str, Any] = {}
