@@ -3,6 +3,7 @@ mechanically (results/budgeted-trust-region/PROTOCOL.md, results/fresh-samples/P
 
     python benchmarks/screening_report.py budgeted-trust-region [--runs results/runs]
     python benchmarks/screening_report.py fresh-samples [--runs results/runs]
+    ... --write-confirmation     # also the confirmation's specs, from the decision
 
 Writes results/<experiment>/screening.md and screening.json. Every configuration is one YAML
 spec of the protocol's screening/ folder (its runs under RUNS/<name>-<scale>/); the report refuses
@@ -48,6 +49,10 @@ from svrpo.experiments.table import t_interval  # noqa: E402
 from svrpo.rundir import checkpoint  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
+CONFIRMATION_SEEDS = list(range(100, 110))
+"""Both protocols: the confirmation's seeds, never used in screening."""
+CONFIRMATION_STEPS = 1_001_472
+"""Both protocols: 489 iterations of N = 2,048 (fresh-sample runs: the whole iterations that fit)."""
 TIE = 0.01
 """Both protocols: an IQM difference below this is a tie, broken by the candidates' order."""
 
@@ -262,11 +267,54 @@ def report(screening: Screening, runs: Path, resamples: int = 2000) -> tuple[lis
     return lines, {"per_task": per_task, "aggregate": summary, "twins": twins, "decision": decision}
 
 
+def confirmation_specs(screening: Screening, decision: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """{file name: spec} of the confirmation (PROTOCOL.md section 3): the chosen configuration
+    and its twin, and for the budgeted trust region TRPO at the matched delta, each its
+    screening spec on the six tasks, CONFIRMATION_SEEDS and CONFIRMATION_STEPS."""
+    import yaml
+
+    from svrpo.experiments.specs import PAPER_TASKS
+
+    def confirm(name: str, rename: str | None = None, **overrides: Any) -> tuple[str, dict[str, Any]]:
+        spec = yaml.safe_load(spec_path(screening, name).read_text())
+        new_name = rename or name
+        spec["name"] = spec["name"].replace("-screen-", "-confirm-").replace(name, new_name)
+        spec["tasks"] = list(PAPER_TASKS)
+        spec["seeds"] = CONFIRMATION_SEEDS
+        spec["overrides"] = {**spec.get("overrides", {}), "total_steps": CONFIRMATION_STEPS, **overrides}
+        return f"{new_name}.yaml", spec
+
+    files = dict([confirm(decision["chosen"]), confirm(decision["twin"])])
+    if screening.matched_kl:
+        delta = decision["matched_trpo_max_kl"]
+        files.update([confirm(screening.reference, f"trpo-d{delta:g}", max_kl=delta)])
+    return files
+
+
+def write_confirmation(screening: Screening, decision: Mapping[str, Any], out: Path) -> list[Path]:
+    """The confirmation specs as YAML files in `out` (refusing to replace different ones: the
+    confirmation is fixed once its runs start)."""
+    import yaml
+
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for file_name, spec in confirmation_specs(screening, decision).items():
+        path = out / file_name
+        text = yaml.safe_dump(spec, sort_keys=False, default_flow_style=None, width=200)
+        if path.exists() and path.read_text() != text:
+            raise ValueError(f"{path} exists with other content; the confirmation's specs are fixed")
+        path.write_text(text)
+        written.append(path)
+    return written
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("experiment", choices=sorted(SCREENINGS))
     parser.add_argument("--runs", type=Path, default=RESULTS / "runs")
     parser.add_argument("--out-dir", type=Path, default=None, help="default results/<experiment>")
+    parser.add_argument("--write-confirmation", action="store_true",
+                        help="also write the confirmation's specs to OUT_DIR/confirmation/ from the decision")
     args = parser.parse_args(argv)
     screening = SCREENINGS[args.experiment]
     try:
@@ -277,6 +325,9 @@ def main(argv: list[str] | None = None) -> None:
     (out / "screening.md").write_text("\n".join(lines))
     (out / "screening.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(f"wrote {out / 'screening.md'}")
+    if args.write_confirmation:
+        for path in write_confirmation(screening, summary["decision"], out / "confirmation"):
+            print(f"wrote {path}")
 
 
 if __name__ == "__main__":

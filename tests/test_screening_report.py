@@ -123,3 +123,28 @@ def test_every_configuration_of_the_protocols_has_its_committed_spec(experiment:
     for name in screening.configs:
         spec = load_spec(str(script.spec_path(screening, name)))
         assert (spec.tasks, spec.seeds) == (reference.tasks, reference.seeds)
+
+
+def test_confirmation_specs_follow_the_decision_on_fresh_seeds(tmp_path: Path) -> None:
+    """Budgeted trust region: the chosen configuration, its SGD twin and TRPO at the matched
+    delta, each its screening spec on six tasks, seeds 100-109, 1,001,472 steps."""
+    script = _script()
+    screening = script.SCREENINGS["budgeted-trust-region"]
+    decision = {"chosen": "budgeted-sarah-b0.02", "twin": "budgeted-sgd-b0.02", "matched_trpo_max_kl": 0.018}
+    paths = script.write_confirmation(screening, decision, tmp_path)
+    specs = {p.stem: load_spec(str(p)) for p in paths}
+    assert set(specs) == {"budgeted-sarah-b0.02", "budgeted-sgd-b0.02", "trpo-d0.018"}
+    trpo = specs["trpo-d0.018"]
+    assert trpo.name == "bt-confirm-trpo-d0.018" and trpo.presets == ("trpo",)
+    assert trpo.overrides == {"total_steps": 1_001_472, "max_kl": 0.018}
+    sarah = specs["budgeted-sarah-b0.02"]
+    assert sarah.name == "bt-confirm-budgeted-sarah-b0.02"
+    assert sarah.overrides == {"total_steps": 1_001_472, "max_kl": 0.02, "estimator": "sarah"}
+    for spec in specs.values():
+        assert spec.seeds == tuple(range(100, 110)) and len(spec.tasks) == 6 and spec.scale == "modern"
+        assert not set(spec.seeds) & {0, 1, 2}
+    # Written again with the same decision: the same files; a file changed since: refused.
+    assert script.write_confirmation(screening, decision, tmp_path) == paths
+    paths[0].write_text(paths[0].read_text().replace("100, 101", "100"))
+    with pytest.raises(ValueError, match="fixed"):
+        script.write_confirmation(screening, decision, tmp_path)
