@@ -120,6 +120,16 @@ def measured(runs: Path) -> dict[str, dict[str, list[RunCost]]]:
     return out
 
 
+def committed_run_ratio(committed: Path, task: str) -> float:
+    """Median svrpo run's last wall_time over the median trpo run's, in the committed sweep
+    (the figure RESULTS.md quoted as "more wall-clock per run")."""
+    def median_run(preset: str) -> float:
+        return float(np.median([read_progress(d / "progress.csv")[-1]["wall_time"]
+                                for d in _seed_dirs(committed, task, preset)]))
+
+    return median_run("svrpo") / median_run("trpo")
+
+
 def committed_table(path: Path) -> dict[tuple[str, str], dict[str, str]]:
     with open(path, newline="") as handle:
         return {(row["task"], row["preset"]): row for row in csv.DictReader(handle)}
@@ -191,6 +201,16 @@ def report(runs: Path, committed: Path, table: Path) -> list[str]:
             committed_wall = _percent(_number(row["percent_of_trpo_wall"]))
             lines.append(f"| {task} | {preset} | {_percent(steps)} | {committed_wall} | {at_equal} | "
                          f"{in_cpu} |")
+    lines += ["", "## Cost per run: the committed ratio against the equal-load one", "",
+              "Committed: the median svrpo run's wall_time over the median trpo run's (results/runs/"
+              "figure1-modern, presets trained hours apart). Equal load: the per-iteration ratios above "
+              "(both presets run the same 489 iterations of N = 2,048 steps).", "",
+              "| task | committed wall ratio per run | equal-load wall ratio [95% CI] | "
+              "equal-load CPU ratio [95% CI] |",
+              "|---|---|---|---|"]
+    for task, (wall, cpu) in ratios.items():
+        lines.append(f"| {task} | {committed_run_ratio(committed, task):.2f} | {_interval(wall)} | "
+                     f"{_interval(cpu)} |")
     lines += ["", "## Stationarity: is an early iteration's cost the whole run's?", "",
               "In each committed figure1-modern run: mean wall_time increment over iterations "
               f"{FIRST}-{LAST} "

@@ -94,6 +94,8 @@ def test_report_rereads_the_committed_column_through_the_ratio(tmp_path: Path) -
     assert "| Hopper-v5 | svrpo | 40% | 55% | 80% [80, 80] | 60% [60, 60] |" in lines
     assert "| Hopper-v5 | trpo | 100% | 100% | 100% | 100% |" in lines
     assert "| Hopper-v5 | 1.00 - 1.00 | 1.00 - 1.00 |" in lines
+    # Committed runs: both presets end at wall_time 10: a ratio of 1 per run.
+    assert "| Hopper-v5 | 1.00 | 2.00 [2.00, 2.00] | 1.50 [1.50, 1.50] |" in lines
 
 
 def test_measured_refuses_unpaired_seeds(tmp_path: Path) -> None:
