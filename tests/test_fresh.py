@@ -431,3 +431,22 @@ def test_the_budget_is_also_held_on_the_snapshot_states() -> None:
     assert kl == pytest.approx(kl_fresh) and fresh.outside_further_balls == 1
     iterate = IterateAnchor(between).bound(fresh_batch_, policy)
     assert math.isfinite(fresh.objective_and_kl(iterate)()[1])
+
+
+def test_a_worker_killed_during_a_fresh_draw_is_replaced_and_the_run_is_unchanged(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Sample call 1 is iteration 1's snapshot batch, call 2 its first fresh draw (with w_1): a
+    worker SIGKILLed during it is replaced, the draw repeated from the last recorded state (never
+    a batch mixed from a dead and a new worker), and every row is the uninterrupted run's."""
+    from svrpo.rundir.training import train
+    from svrpo.sampling.sampler import Sampler
+    from tests.test_restarting_sampler import _killing
+
+    config = _tiny("svrpg", num_workers=1)
+    train(config, tmp_path / "reference", show_progress=False)
+    reference = without_clock(progress_rows(tmp_path / "reference"))
+    assert int(reference[0]["fresh_steps"]) > 0  # call 2 is a fresh draw of iteration 1
+    monkeypatch.setattr(Sampler, "sample", _killing(Sampler.sample, lambda call: call == 2, mid_call=True))
+    run = train(config, tmp_path / "killed", show_progress=False)
+    assert run.sampler.restarts == 1
+    assert without_clock(progress_rows(tmp_path / "killed")) == reference
