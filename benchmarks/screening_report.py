@@ -4,6 +4,7 @@ mechanically (results/budgeted-trust-region/PROTOCOL.md, results/fresh-samples/P
     python benchmarks/screening_report.py budgeted-trust-region [--runs results/runs]
     python benchmarks/screening_report.py fresh-samples [--runs results/runs]
     ... --write-confirmation     # also the confirmation's specs, from the decision
+    ... --confirmation           # the confirmation's report, once its runs have finished
 
 Writes results/<experiment>/screening.md and screening.json. Every configuration is one YAML
 spec of the protocol's screening/ folder (its runs under RUNS/<name>-<scale>/); the report refuses
@@ -123,23 +124,28 @@ def finished(run_dir: Path) -> bool:
     return checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations).is_file()
 
 
-def unfinished(screening: Screening, runs: Path) -> list[Path]:
-    missing = []
-    for name in screening.configs:
-        for dirs in run_dirs(load_spec(str(spec_path(screening, name))), runs).values():
-            missing += [d for d in dirs if not finished(d)]
-    return missing
+def unfinished(groups: Mapping[str, Mapping[str, Sequence[Path]]]) -> list[Path]:
+    """The run directories of `groups` (configuration -> task -> runs) that have not finished."""
+    return [d for by_task in groups.values() for dirs in by_task.values() for d in dirs if not finished(d)]
 
 
 Curves = dict[str, dict[str, list[RunCurve]]]
+Groups = dict[str, dict[str, list[Path]]]
+"""configuration -> task -> its run directories by seed."""
 
 
-def curves(screening: Screening, runs: Path, metric: str) -> Curves:
+def spec_groups(screening: Screening, runs: Path, names: Sequence[str] | None = None) -> Groups:
+    """The configurations' run directories under RUNS, from their specs."""
+    return {name: run_dirs(load_spec(str(spec_path(screening, name))), runs)
+            for name in (names or screening.configs)}
+
+
+def curves(groups: Groups, reference: str, metric: str) -> Curves:
     """task -> configuration -> curves by seed; the reference is keyed as aggregate's REFERENCE."""
     out: Curves = {}
-    for name in screening.configs:
-        key = REFERENCE if name == screening.reference else name
-        for task, dirs in run_dirs(load_spec(str(spec_path(screening, name))), runs).items():
+    for name, by_task in groups.items():
+        key = REFERENCE if name == reference else name
+        for task, dirs in by_task.items():
             out.setdefault(task, {})[key] = [load_curve(d, metric) for d in dirs]
     return out
 
@@ -194,23 +200,20 @@ def _entry(estimate: Mapping[str, Any] | None) -> str:
     return f"{estimate['value']:.2f} [{estimate['ci'][0]:.2f}, {estimate['ci'][1]:.2f}]"
 
 
-def report(screening: Screening, runs: Path, resamples: int = 2000) -> tuple[list[str], dict[str, Any]]:
-    """(markdown lines, JSON summary); ValueError if any run has not finished."""
-    missing = unfinished(screening, runs)
-    if missing:
-        raise ValueError(f"{len(missing)} runs have not finished (first: {missing[0]}); the protocol "
-                         "decides on the complete screening")
-    returns = curves(screening, runs, "average_return")
-    evals = curves(screening, runs, "eval_return")
-    kl = curves(screening, runs, "mean_kl")
-    learner, workers = curves(screening, runs, "cpu_learner"), curves(screening, runs, "cpu_workers")
-    name = {REFERENCE: screening.reference}
+def compare(groups: Groups, reference: str, resamples: int = 2000
+            ) -> tuple[list[str], dict[str, Any], dict[str, list[np.ndarray]], Curves]:
+    """The per-task table and the across-task reading of `groups`, normalised by `reference`:
+    (markdown lines, {"per_task", "aggregate"}, each configuration's final returns per task, the
+    mean_kl curves)."""
+    returns = curves(groups, reference, "average_return")
+    evals = curves(groups, reference, "eval_return")
+    kl = curves(groups, reference, "mean_kl")
+    learner, workers = curves(groups, reference, "cpu_learner"), curves(groups, reference, "cpu_workers")
 
     def shown(key: str) -> str:
-        return name.get(key, key)
+        return reference if key == REFERENCE else key
 
-    lines = [f"# Screening: {screening.experiment} (PROTOCOL.md)", "",
-             "| task | configuration | n | final return [95% CI] | final deterministic eval [95% CI] | "
+    lines = ["| task | configuration | n | final return [95% CI] | final deterministic eval [95% CI] | "
              "area under the curve [95% CI] | mean KL moved per iteration | steps per iteration | "
              "CPU s per run (median) |", "|---|---|---|---|---|---|---|---|---|"]
     per_task: dict[str, dict[str, Any]] = {}
@@ -230,17 +233,30 @@ def report(screening: Screening, runs: Path, resamples: int = 2000) -> tuple[lis
                          + ("not recorded" if math.isnan(cpu) else f"{cpu:,.0f}") + " |")
     summary = aggregate_report(returns, evals, resamples)
     assert summary is not None  # every configuration has runs on every task
-    lines += ["", f"Across the {len(returns)} tasks, normalised by {screening.reference} (IQM: 0 = the "
-              f"untrained policy, 1 = {screening.reference}'s mean final return, both re-estimated in every "
-              "one of 2,000 stratified resamples):", "",
-              f"| configuration | IQM [95% CI] | IQM minus {screening.reference}'s [95% CI] | "
-              f"P(configuration > {screening.reference}) [95% CI] |", "|---|---|---|---|"]
-    for key in returns[next(iter(returns))]:
+    lines += ["", f"Across the {len(returns)} tasks, normalised by {reference} (IQM: 0 = the "
+              f"untrained policy, 1 = {reference}'s mean final return, both re-estimated in every "
+              f"one of {resamples:,} stratified resamples):", "",
+              f"| configuration | IQM [95% CI] | IQM minus {reference}'s [95% CI] | "
+              f"P(configuration > {reference}) [95% CI] |", "|---|---|---|---|"]
+    keys = list(returns[next(iter(returns))])
+    for key in keys:
         lines.append(f"| {shown(key)} | {_entry(summary['iqm'].get(key))} | "
                      f"{_entry(summary['iqm_difference_to_trpo'].get(key))} | "
                      f"{_entry(summary['probability_of_improvement_over_trpo'].get(key))} |")
-    keys = list(returns[next(iter(returns))])
-    finals_by = {key: [window_scores(returns[task][key]) for task in returns] for key in keys}
+    finals_by = {shown(key): [window_scores(returns[task][key]) for task in returns] for key in keys}
+    return lines, {"per_task": per_task, "aggregate": summary}, finals_by, kl
+
+
+def report(screening: Screening, runs: Path, resamples: int = 2000) -> tuple[list[str], dict[str, Any]]:
+    """(markdown lines, JSON summary); ValueError if any run has not finished."""
+    groups = spec_groups(screening, runs)
+    missing = unfinished(groups)
+    if missing:
+        raise ValueError(f"{len(missing)} runs have not finished (first: {missing[0]}); the protocol "
+                         "decides on the complete screening")
+    table, tables, finals_by, kl = compare(groups, screening.reference, resamples)
+    per_task, summary = tables["per_task"], tables["aggregate"]
+    lines = [f"# Screening: {screening.experiment} (PROTOCOL.md)", "", *table]
     twins = {}
     lines += ["", "| candidate | its twin | P(candidate > twin) [95% CI] |", "|---|---|---|"]
     for candidate in screening.candidates:
@@ -308,6 +324,94 @@ def write_confirmation(screening: Screening, decision: Mapping[str, Any], out: P
     return written
 
 
+COMMITTED_TRPO = "trpo-d0.01 (figure1-modern)"
+"""TRPO at delta = 0.01 from the committed modern sweep (results/runs/figure1-modern, seeds 0-4),
+which both protocols show beside the confirmation without re-running it."""
+
+
+def committed_trpo(runs: Path, tasks: Sequence[str]) -> dict[str, list[Path]]:
+    """The committed modern sweep's trpo runs of `tasks`, by seed."""
+    def seeds(task: str) -> list[Path]:
+        return sorted((runs / "figure1-modern" / task / "trpo").glob("seed*"), key=lambda p: int(p.name[4:]))
+
+    found = {task: seeds(task) for task in tasks}
+    missing = [task for task, dirs in found.items() if not dirs]
+    if missing:
+        raise ValueError(f"no committed trpo runs of {', '.join(missing)} under {runs / 'figure1-modern'}")
+    return found
+
+
+def _decision(experiment: str) -> dict[str, Any]:
+    path = RESULTS / experiment / "screening.json"
+    if not path.is_file():
+        raise ValueError(f"{path} does not exist: the screening has not been decided")
+    return dict(json.loads(path.read_text())["decision"])
+
+
+def confirmation_plan(screening: Screening, runs: Path
+                      ) -> tuple[Groups, str, list[tuple[str, str, str]]]:
+    """(configuration groups, the IQM's reference, [(X, Y, question)] for P(X > Y)) of the
+    confirmation, from the screening's committed decision and the protocols' sections 3 and 8."""
+    decision = _decision(screening.experiment)
+    specs = confirmation_specs(screening, decision)
+    folder = RESULTS / screening.experiment / "confirmation"
+    groups: Groups = {Path(name).stem: run_dirs(load_spec(str(folder / name)), runs) for name in specs}
+    chosen, twin = decision["chosen"], decision["twin"]
+    if screening.matched_kl:  # budgeted trust region: normalised by, and compared with, the matched TRPO
+        matched = f"trpo-d{decision['matched_trpo_max_kl']:g}"
+        groups[COMMITTED_TRPO] = committed_trpo(runs, list(groups[chosen]))
+        return groups, matched, [(chosen, twin, "does variance reduction beat its SGD twin?"),
+                                 (chosen, matched, "is the budgeted loop more than TRPO at matched KL?")]
+    groups[COMMITTED_TRPO] = committed_trpo(runs, list(groups[chosen]))
+    comparisons = [(chosen, COMMITTED_TRPO, "do fresh samples buy samples over TRPO?"),
+                   (chosen, twin, "does the control variate beat its fresh-SGD twin?")]
+    try:  # the best same-batch configuration: the budgeted-trust-region confirmation's choice
+        same_batch = _decision("budgeted-trust-region")["chosen"]
+        bt = SCREENINGS["budgeted-trust-region"]
+        spec = load_spec(str(RESULTS / bt.experiment / "confirmation" / f"{same_batch}.yaml"))
+        dirs = run_dirs(spec, runs)
+        if not unfinished({same_batch: dirs}):
+            groups[f"{same_batch} (same batch)"] = dirs
+            comparisons.insert(1, (chosen, f"{same_batch} (same batch)",
+                                   "do fresh samples beat reusing one batch?"))
+    except (ValueError, OSError):
+        pass  # not confirmed yet: the report says so below
+    return groups, COMMITTED_TRPO, comparisons
+
+
+def no_effect(estimate: Mapping[str, Any]) -> bool:
+    """Both protocols' section 8: no effect when the 95% interval of P(X > Y) contains 0.5."""
+    return bool(estimate["ci"][0] <= 0.5 <= estimate["ci"][1])
+
+
+def confirmation_report(screening: Screening, runs: Path, resamples: int = 2000
+                        ) -> tuple[list[str], dict[str, Any]]:
+    """The confirmation's report and its answers (PROTOCOL.md sections 5 and 8); ValueError
+    until every confirmation run has finished."""
+    groups, reference, comparisons = confirmation_plan(screening, runs)
+    missing = unfinished(groups)
+    if missing:
+        raise ValueError(f"{len(missing)} runs have not finished (first: {missing[0]})")
+    table, tables, finals_by, _ = compare(groups, reference, resamples)
+    lines = [f"# Confirmation: {screening.experiment} (PROTOCOL.md)", "", *table, "",
+             "| question | P(X > Y) [95% CI] | reading (PROTOCOL.md section 8) |", "|---|---|---|"]
+    answers = []
+    for x, y, question in comparisons:
+        estimate = probability_bootstrap(finals_by[x], finals_by[y], resamples)
+        entry = {"x": x, "y": y, "question": question, "value": estimate.value,
+                 "ci": [estimate.low, estimate.high]}
+        entry["no_effect"] = no_effect(entry)
+        answers.append(entry)
+        verdict = "no effect: the interval contains 0.5" if entry["no_effect"] else (
+            f"{x} ahead" if estimate.value > 0.5 else f"{y} ahead")
+        lines.append(f"| {question} P({x} > {y}) | {_entry(entry)} | {verdict} |")
+    if screening.experiment == "fresh-samples" and not any("same batch" in y for _, y, _ in comparisons):
+        lines += ["", "The budgeted-trust-region confirmation has not finished: the comparison with the "
+                  "best same-batch configuration is missing."]
+    lines.append("")
+    return lines, {**tables, "answers": answers, "reference": reference}
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("experiment", choices=sorted(SCREENINGS))
@@ -315,13 +419,24 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out-dir", type=Path, default=None, help="default results/<experiment>")
     parser.add_argument("--write-confirmation", action="store_true",
                         help="also write the confirmation's specs to OUT_DIR/confirmation/ from the decision")
+    parser.add_argument("--confirmation", action="store_true",
+                        help="the confirmation's report (confirmation.md/.json) instead of the screening's")
     args = parser.parse_args(argv)
     screening = SCREENINGS[args.experiment]
+    out = args.out_dir or RESULTS / screening.experiment
+    if args.confirmation:
+        try:
+            lines, summary = confirmation_report(screening, args.runs)
+        except ValueError as error:
+            raise SystemExit(f"screening_report: {error}") from None
+        (out / "confirmation.md").write_text("\n".join(lines))
+        (out / "confirmation.json").write_text(json.dumps(summary, indent=2) + "\n")
+        print(f"wrote {out / 'confirmation.md'}")
+        return
     try:
         lines, summary = report(screening, args.runs)
     except ValueError as error:
         raise SystemExit(f"screening_report: {error}") from None
-    out = args.out_dir or RESULTS / screening.experiment
     (out / "screening.md").write_text("\n".join(lines))
     (out / "screening.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(f"wrote {out / 'screening.md'}")

@@ -148,3 +148,52 @@ def test_confirmation_specs_follow_the_decision_on_fresh_seeds(tmp_path: Path) -
     paths[0].write_text(paths[0].read_text().replace("100, 101", "100"))
     with pytest.raises(ValueError, match="fixed"):
         script.write_confirmation(screening, decision, tmp_path)
+
+
+def test_confirmation_report_answers_the_protocols_questions(tmp_path: Path,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """From a committed decision (vr-a, twin sgd, matched TRPO 0.02) and the specs written from
+    it: vr-a ends at 150 + s, sgd 120 + s, trpo-d0.02 140 + s, the committed TRPO 100 + s. Every
+    run of vr-a beats every run of the others: P = 1 with an interval that excludes 0.5."""
+    from svrpo.experiments import specs
+
+    script, screening, runs = _screening(tmp_path)
+    screening = script.Screening("test", screening.configs, screening.reference, screening.reference_spec,
+                                 screening.candidates, screening.twins, True, screening.spec_dir)
+    results = tmp_path / "results"
+    monkeypatch.setattr(script, "RESULTS", results)
+    monkeypatch.setattr(script, "CONFIRMATION_SEEDS", [100, 101, 102])
+    monkeypatch.setattr(specs, "PAPER_TASKS", ("Hopper-v5", "Walker2d-v5"))
+    with pytest.raises(ValueError, match="not been decided"):
+        script.confirmation_report(screening, runs, resamples=50)
+    decision = {"chosen": "vr-a", "twin": "sgd", "matched_trpo_max_kl": 0.02}
+    (results / "test").mkdir(parents=True)
+    (results / "test" / "screening.json").write_text(json.dumps({"decision": decision}))
+    script.write_confirmation(screening, decision, results / "test" / "confirmation")
+    finals = {("s-vr-a", "svrpo-budgeted"): 150.0, ("s-sgd", "svrpo-budgeted"): 120.0,
+              ("s-trpo-d0.02", "trpo"): 140.0}
+    for (experiment, preset), final in finals.items():
+        for task in ("Hopper-v5", "Walker2d-v5"):
+            for seed in (100, 101, 102):
+                _write_run(runs / f"{experiment}-modern" / task / preset / f"seed{seed}", task, preset,
+                           experiment, seed, [0.0] + [final + seed] * 9, [0.01] * 10)
+    with pytest.raises(ValueError, match="no committed trpo runs of Hopper-v5, Walker2d-v5"):
+        script.confirmation_report(screening, runs, resamples=50)
+    for task in ("Hopper-v5", "Walker2d-v5"):
+        for seed in range(3):
+            _write_run(runs / "figure1-modern" / task / "trpo" / f"seed{seed}", task, "trpo", "figure1",
+                       seed, [0.0] + [100.0 + seed] * 9, [0.005] * 10)
+    lines, summary = script.confirmation_report(screening, runs, resamples=200)
+    answers = {(a["x"], a["y"]): a for a in summary["answers"]}
+    assert set(answers) == {("vr-a", "sgd"), ("vr-a", "trpo-d0.02")}
+    assert all(a["value"] == 1.0 and not a["no_effect"] for a in answers.values())
+    assert summary["reference"] == "trpo-d0.02"
+    assert ("| does variance reduction beat its SGD twin? P(vr-a > sgd) | 1.00 [1.00, 1.00] | vr-a ahead |"
+            in lines)
+    assert set(summary["per_task"]["Hopper-v5"]) == {"vr-a", "sgd", "trpo-d0.02", script.COMMITTED_TRPO}
+
+
+def test_no_effect_is_an_interval_containing_one_half() -> None:
+    no_effect = _script().no_effect
+    assert no_effect({"ci": [0.4, 0.6]}) and no_effect({"ci": [0.5, 0.9]})
+    assert not no_effect({"ci": [0.51, 0.9]}) and not no_effect({"ci": [0.1, 0.49]})
