@@ -25,6 +25,7 @@ KlAnchor = Literal["sampling", "iterate", "budgeted"]
 InnerStop = Literal["all", "failed_search"]
 BaselineKind = Literal["linear", "mlp"]
 Scale = Literal["paper", "laptop", "modern"]
+WeightInit = Literal["torch", "orthogonal"]
 
 
 class ConfigError(ValueError):
@@ -144,6 +145,11 @@ class Config:
     """Hidden layer widths of the Gaussian MLP policy (tanh)."""
     init_log_std: float = 0.0
     """Initial value of the learned state-independent log standard deviation."""
+    weight_init: WeightInit = "torch"
+    """How the policy's and the MLP critic's weights start: `torch` (PyTorch's default for the
+    hidden layers, a uniform [-0.01, 0.01] mean head, zero head bias) or `orthogonal`
+    (stable-baselines3's: orthogonal matrices, gain sqrt 2 for hidden layers, 0.01 for the mean
+    head, 1 for the value head, zero biases; svrpo/models/initialization.py)."""
 
     # --- sampling and bookkeeping ---
     num_workers: int = 2

@@ -173,7 +173,8 @@ def build_run(config: Config, estimator: GradientEstimator | None = None) -> Run
     info = sampler.info
     torch.manual_seed(config.seed)
     streams = RandomStreams(config.seed)
-    policy = GaussianMlpPolicy(info.obs_dim, info.act_dim, config.hidden_sizes, config.init_log_std)
+    policy = GaussianMlpPolicy(info.obs_dim, info.act_dim, config.hidden_sizes, config.init_log_std,
+                               config.weight_init)
     baseline: Baseline
     if config.baseline == "linear":
         baseline = LinearFeatureBaseline(info.obs_dim)
@@ -185,6 +186,7 @@ def build_run(config: Config, estimator: GradientEstimator | None = None) -> Run
             config.baseline_epochs,
             config.baseline_minibatch_size,
             streams.generator("baseline"),
+            config.weight_init,
         )
     normalizer = RunningMeanStd(info.obs_dim) if config.normalize_observations else None
     # The streams every run draws from exist before any part asks for its own.

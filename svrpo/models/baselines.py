@@ -7,6 +7,8 @@ from typing import Protocol
 import torch
 from torch import nn
 
+from svrpo.models.initialization import VALUE_HEAD_GAIN, WeightInit, orthogonal_
+
 
 class Baseline(Protocol):
     """V(s_t) estimate used for advantages; refit after the advantages are computed."""
@@ -94,6 +96,7 @@ class MlpValueFunction:
         epochs: int,
         minibatch_size: int,
         generator: torch.Generator,
+        weight_init: WeightInit = "torch",
     ) -> None:
         layers: list[nn.Module] = []
         width = obs_dim
@@ -101,6 +104,8 @@ class MlpValueFunction:
             layers += [nn.Linear(width, hidden), nn.Tanh()]
             width = hidden
         layers.append(nn.Linear(width, 1))
+        if weight_init == "orthogonal":
+            orthogonal_([m for m in layers if isinstance(m, nn.Linear)], head_gain=VALUE_HEAD_GAIN)
         self.network = nn.Sequential(*layers)
         self.optimizer = torch.optim.Adam(self.network.parameters(), lr=lr)
         self.epochs = epochs

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from svrpo.models.initialization import POLICY_HEAD_GAIN, WeightInit, orthogonal_
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 
 
@@ -20,6 +21,7 @@ class GaussianMlpPolicy(nn.Module):
         act_dim: int,
         hidden_sizes: tuple[int, ...] = (64, 64),
         init_log_std: float = 0.0,
+        weight_init: WeightInit = "torch",
     ) -> None:
         super().__init__()
         self.obs_dim = obs_dim
@@ -36,6 +38,8 @@ class GaussianMlpPolicy(nn.Module):
         nn.init.zeros_(head.bias)
         layers.append(head)
         self.mean_net = nn.Sequential(*layers)
+        if weight_init == "orthogonal":
+            orthogonal_([m for m in layers if isinstance(m, nn.Linear)], head_gain=POLICY_HEAD_GAIN)
         self.log_std = nn.Parameter(torch.full((act_dim,), float(init_log_std)))
 
     def forward(self, observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
