@@ -1,0 +1,108 @@
+"""The Swimmer anchor-gap diagnosis (results/swimmer-anchor-gap/PROTOCOL.md) as a table.
+
+    python benchmarks/swimmer_gap.py [--runs results/runs] [--out results/swimmer-anchor-gap/report.md]
+
+Per variant: each seed's mean training return over iterations 196-245 (400-500k steps) and its
+deterministic evaluation after iteration 245 (the last eval_return at or before it), the seed
+mean with a Student-t 95% interval; the unchanged trpo is the committed modern sweep's first
+245 iterations (seeds 0-2); sb3-contrib's from its per-episode record over 400-500k steps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from svrpo.experiments.table import t_interval  # noqa: E402
+from svrpo.rundir.logging import read_progress  # noqa: E402
+
+FIRST, LAST = 196, 245
+"""Iterations of the window (1-based, inclusive): 400-500k steps at N = 2,048."""
+SEEDS = (0, 1, 2)
+VARIANTS = {
+    "trpo (committed, unchanged)": "figure1-modern",
+    "no-stagger": "swimmer-gap-no-stagger-modern",
+    "one-env": "swimmer-gap-one-env-modern",
+    "orthogonal-init": "swimmer-gap-orthogonal-init-modern",
+    "one-env-orthogonal": "swimmer-gap-one-env-orthogonal-modern",
+}
+SB3 = Path(__file__).parent / "results" / "sb3_anchor_1M_more.json"
+
+
+def window_return(rows: Sequence[Mapping[str, float]], first: int = FIRST, last: int = LAST) -> float:
+    """Mean of the finite average_return over iterations first..last (NaN before `last`)."""
+    window = [r["average_return"] for r in rows if first <= int(r["iteration"]) <= last]
+    if len(window) != last - first + 1:
+        return math.nan
+    finite = [v for v in window if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
+
+
+def eval_at(rows: Sequence[Mapping[str, float]], last: int = LAST) -> float:
+    """The last finite eval_return at or before iteration `last`."""
+    found = [r["eval_return"] for r in rows
+             if int(r["iteration"]) <= last and math.isfinite(r["eval_return"])]
+    return float(found[-1]) if found else math.nan
+
+
+def sb3_window(episodes: Sequence[Sequence[float]], low: int = 400_000, high: int = 500_000) -> float:
+    """Mean return of sb3's episodes that ended after `low` and by `high` steps."""
+    inside = [ret for step, ret in episodes if low < step <= high]
+    return float(np.mean(inside)) if inside else math.nan
+
+
+def _interval(values: Sequence[float]) -> str:
+    finite = np.array([v for v in values if math.isfinite(v)])
+    if finite.size < 2:
+        return "n/a"
+    low, high = t_interval(finite)
+    return f"{finite.mean():.1f} [{low:.1f}, {high:.1f}]"
+
+
+def report(runs: Path, sb3: Path = SB3) -> list[str]:
+    lines = ["# Swimmer-v5: our modern TRPO against sb3-contrib's, one difference at a time", "",
+             f"Training return over iterations {FIRST}-{LAST} (400-500k steps) and the deterministic "
+             f"evaluation after iteration {LAST}, per seed; the seed mean with a 95% Student-t interval "
+             "(results/swimmer-anchor-gap/PROTOCOL.md). The committed runs evaluate every 50 iterations "
+             f"and go on to 489, so their last evaluation by iteration {LAST} is the one at 200; the "
+             f"variants' runs end at {LAST} and evaluate there.", "",
+             "| variant | seeds' training return | mean [95% CI] | seeds' evaluation | mean [95% CI] |",
+             "|---|---|---|---|---|"]
+    for name, experiment in VARIANTS.items():
+        dirs = [runs / experiment / "Swimmer-v5" / "trpo" / f"seed{s}" for s in SEEDS]
+        if not all((d / "progress.csv").is_file() for d in dirs):
+            lines.append(f"| {name} | not run | | | |")
+            continue
+        rows = [read_progress(d / "progress.csv") for d in dirs]
+        train = [window_return(r) for r in rows]
+        evals = [eval_at(r) for r in rows]
+        lines.append(f"| {name} | {', '.join(f'{v:.1f}' for v in train)} | {_interval(train)} | "
+                     f"{', '.join(f'{v:.1f}' for v in evals)} | {_interval(evals)} |")
+    if sb3.is_file():
+        data = json.loads(sb3.read_text())
+        episodes = {r["seed"]: r["episodes"] for r in data["runs"] if r["env"] == "Swimmer-v5"}
+        train = [sb3_window(episodes[s]) for s in sorted(episodes)]
+        seeds = ", ".join(f"{v:.1f}" for v in train)
+        lines.append(f"| sb3-contrib TRPO (400-500k steps of its 1M runs) | {seeds} | {_interval(train)} | "
+                     "not evaluated at 500k | |")
+    return lines + [""]
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=Path, default=Path("results/runs"))
+    parser.add_argument("--out", type=Path, default=Path("results/swimmer-anchor-gap/report.md"))
+    args = parser.parse_args(argv)
+    args.out.write_text("\n".join(report(args.runs)))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
