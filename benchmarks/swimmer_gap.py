@@ -25,14 +25,23 @@ from svrpo.rundir.logging import read_progress  # noqa: E402
 
 FIRST, LAST = 196, 245
 """Iterations of the window (1-based, inclusive): 400-500k steps at N = 2,048."""
-SEEDS = (0, 1, 2)
-VARIANTS = {
-    "trpo (committed, unchanged)": "figure1-modern",
-    "no-stagger": "swimmer-gap-no-stagger-modern",
-    "one-env": "swimmer-gap-one-env-modern",
-    "orthogonal-init": "swimmer-gap-orthogonal-init-modern",
-    "one-env-orthogonal": "swimmer-gap-one-env-orthogonal-modern",
+FIRST_SEEDS = (0, 1, 2)
+MORE_SEEDS = (3, 4, 5, 6, 7)
+UNCHANGED, CLOSEST = "trpo (unchanged)", "one-env-orthogonal"
+VARIANTS: dict[str, list[tuple[str, tuple[int, ...]]]] = {
+    UNCHANGED: [("figure1-modern", FIRST_SEEDS)],
+    "no-stagger": [("swimmer-gap-no-stagger-modern", FIRST_SEEDS)],
+    "one-env": [("swimmer-gap-one-env-modern", FIRST_SEEDS)],
+    "orthogonal-init": [("swimmer-gap-orthogonal-init-modern", FIRST_SEEDS)],
+    CLOSEST: [("swimmer-gap-one-env-orthogonal-modern", FIRST_SEEDS)],
 }
+"""Seeds 0-2 of every variant (the protocol's first sections); the unchanged trpo's are the
+committed modern sweep's first 245 iterations."""
+MORE: dict[str, list[tuple[str, tuple[int, ...]]]] = {
+    UNCHANGED: [("figure1-modern", (0, 1, 2, 3, 4)), ("swimmer-gap-unchanged-modern", (5, 6, 7))],
+    CLOSEST: [("swimmer-gap-one-env-orthogonal-modern", FIRST_SEEDS + MORE_SEEDS)],
+}
+"""Seeds 0-7 of the closest setup and of the unchanged trpo (the last dated section)."""
 SB3 = Path(__file__).parent / "results" / "sb3_anchor_1M_more.json"
 
 
@@ -66,6 +75,31 @@ def _interval(values: Sequence[float]) -> str:
     return f"{finite.mean():.1f} [{low:.1f}, {high:.1f}]"
 
 
+def _dirs(runs: Path, sources: Sequence[tuple[str, tuple[int, ...]]]) -> list[Path]:
+    return [runs / experiment / "Swimmer-v5" / "trpo" / f"seed{s}"
+            for experiment, seeds in sources for s in seeds]
+
+
+def _row(name: str, dirs: Sequence[Path]) -> tuple[str, list[float]]:
+    """The table row of one variant and its seeds' training returns (empty if a seed is missing)."""
+    if not all((d / "progress.csv").is_file() for d in dirs):
+        return f"| {name} | not run (or not finished) | | | |", []
+    rows = [read_progress(d / "progress.csv") for d in dirs]
+    train = [window_return(r) for r in rows]
+    evals = [eval_at(r) for r in rows]
+    if not all(math.isfinite(v) for v in train):
+        return f"| {name} | not finished | | | |", []
+    return (f"| {name} | {', '.join(f'{v:.1f}' for v in train)} | {_interval(train)} | "
+            f"{', '.join(f'{v:.1f}' for v in evals)} | {_interval(evals)} |"), train
+
+
+def welch(x: Sequence[float], y: Sequence[float]) -> tuple[float, float]:
+    """(mean x - mean y, two-sided Welch p)."""
+    from scipy import stats
+
+    return float(np.mean(x) - np.mean(y)), float(stats.ttest_ind(x, y, equal_var=False).pvalue)
+
+
 def report(runs: Path, sb3: Path = SB3) -> list[str]:
     lines = ["# Swimmer-v5: our modern TRPO against sb3-contrib's, one difference at a time", "",
              f"Training return over iterations {FIRST}-{LAST} (400-500k steps) and the deterministic "
@@ -75,16 +109,8 @@ def report(runs: Path, sb3: Path = SB3) -> list[str]:
              f"variants' runs end at {LAST} and evaluate there.", "",
              "| variant | seeds' training return | mean [95% CI] | seeds' evaluation | mean [95% CI] |",
              "|---|---|---|---|---|"]
-    for name, experiment in VARIANTS.items():
-        dirs = [runs / experiment / "Swimmer-v5" / "trpo" / f"seed{s}" for s in SEEDS]
-        if not all((d / "progress.csv").is_file() for d in dirs):
-            lines.append(f"| {name} | not run | | | |")
-            continue
-        rows = [read_progress(d / "progress.csv") for d in dirs]
-        train = [window_return(r) for r in rows]
-        evals = [eval_at(r) for r in rows]
-        lines.append(f"| {name} | {', '.join(f'{v:.1f}' for v in train)} | {_interval(train)} | "
-                     f"{', '.join(f'{v:.1f}' for v in evals)} | {_interval(evals)} |")
+    for name, sources in VARIANTS.items():
+        lines.append(_row(name, _dirs(runs, sources))[0])
     if sb3.is_file():
         data = json.loads(sb3.read_text())
         episodes = {r["seed"]: r["episodes"] for r in data["runs"] if r["env"] == "Swimmer-v5"}
@@ -92,6 +118,18 @@ def report(runs: Path, sb3: Path = SB3) -> list[str]:
         seeds = ", ".join(f"{v:.1f}" for v in train)
         lines.append(f"| sb3-contrib TRPO (400-500k steps of its 1M runs) | {seeds} | {_interval(train)} | "
                      "not evaluated at 500k | |")
+    lines += ["", "Seeds 0-7 of the closest setup and of the unchanged trpo (seeds 5-7 of the unchanged "
+              "are new 501,760-step runs, swimmer-gap-unchanged):", "",
+              "| variant | seeds' training return | mean [95% CI] | seeds' evaluation | mean [95% CI] |",
+              "|---|---|---|---|---|"]
+    more = {name: _row(name, _dirs(runs, sources)) for name, sources in MORE.items()}
+    lines += [row for row, _ in more.values()]
+    if all(train for _, train in more.values()):
+        difference, p = welch(more[CLOSEST][1], more[UNCHANGED][1])
+        explains = np.mean(more[CLOSEST][1]) > 100 and p < 0.05
+        verdict = "explains the gap" if explains else "does not explain the gap"
+        lines += ["", f"{CLOSEST} minus the unchanged trpo: {difference:+.1f}, Welch p = {p:.3f}; by the "
+                  f"protocol's last section it {verdict}."]
     return lines + [""]
 
 
