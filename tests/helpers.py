@@ -123,3 +123,17 @@ def _numerics_config(env_id: str) -> Config:
         batch_size=1000, minibatch_size=250, inner_steps=3, total_steps=3000, num_workers=0,
         envs_per_worker=2, normalize_observations=True, baseline="mlp", eval_every=0,
         variance_probe_batches=0, checkpoint_every=1)
+
+
+def load_benchmark(name: str) -> Any:
+    """benchmarks/NAME.py imported as a module (the scripts are not a package)."""
+    import importlib.util
+    import sys
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module

@@ -2,26 +2,20 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
+
+from tests.helpers import load_benchmark
 
 ROOT = Path(__file__).resolve().parents[1]
 HEADER = "iteration,wall_time,eval_return,cpu_learner,cpu_workers"
 
 
 def _script() -> ModuleType:
-    path = ROOT / "benchmarks" / "equal_load_cost.py"
-    spec = importlib.util.spec_from_file_location("equal_load_cost", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["equal_load_cost"] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("equal_load_cost")  # type: ignore[no-any-return]
 
 
 def _rows(walls: list[float], cpu: list[tuple[float, float]],

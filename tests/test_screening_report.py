@@ -3,9 +3,7 @@ and its wiring to the committed protocol specs."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -13,18 +11,13 @@ import pytest
 
 from svrpo.config import make_preset
 from svrpo.experiments.specs import load_spec
+from tests.helpers import load_benchmark
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _script() -> ModuleType:
-    path = ROOT / "benchmarks" / "screening_report.py"
-    spec = importlib.util.spec_from_file_location("screening_report", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["screening_report"] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("screening_report")  # type: ignore[no-any-return]
 
 
 def test_select_takes_the_highest_and_breaks_ties_by_the_protocol_order() -> None:

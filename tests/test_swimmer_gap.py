@@ -2,24 +2,19 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
 
+from tests.helpers import load_benchmark
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _script() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("swimmer_gap", ROOT / "benchmarks" / "swimmer_gap.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["swimmer_gap"] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("swimmer_gap")  # type: ignore[no-any-return]
 
 
 def _rows(returns: list[float], evals: dict[int, float]) -> list[dict[str, float]]:
