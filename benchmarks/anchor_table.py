@@ -44,8 +44,9 @@ from svrpo.experiments.table import final_window, t_interval  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
-DEFAULT_SB3 = (RESULTS / "sb3_anchor_1M.json", RESULTS / "sb3_anchor_1M_more.json")
-"""Read when --sb3 is not given (those of them that exist)."""
+DEFAULT_SB3 = tuple(RESULTS / f"sb3_anchor_1M{part}.json" for part in ("", "_more", "_ant", "_humanoid"))
+"""Read when --sb3 is not given (those of them that exist). Ant and Humanoid ran as two processes
+side by side, one per core, each with its own file."""
 LAST_EPISODES = 100
 STEPS_PER_ITERATION = 2048
 """sb3-contrib's TRPO default n_steps: one of its iterations."""

@@ -2,24 +2,17 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import load_benchmark
 
 
 def _script() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("accepted_steps", ROOT / "benchmarks" / "accepted_steps.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["accepted_steps"] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("accepted_steps")
 
 
 def _rows(accepted: list[float], kl: list[float]) -> list[dict[str, float]]:

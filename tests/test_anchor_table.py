@@ -4,25 +4,18 @@ the Welch comparison, and the merge of several sb3 JSON files."""
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 import math
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import load_benchmark
 
 
 def _script() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("anchor_table", ROOT / "benchmarks" / "anchor_table.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["anchor_table"] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("anchor_table")
 
 
 def test_last_tenth_of_iterations_is_tables_final_window() -> None:

@@ -1,0 +1,90 @@
+"""The experiments' shell scripts run the seeds their protocols name: each script runs as a user
+runs it (bash, in a subprocess), with a stand-in `svrpo` on PATH that records its arguments; the
+recorded `--seeds` values then go through the CLI's own parser and the spec's, as `svrpo sweep`
+would read them."""
+
+from __future__ import annotations
+
+import os
+import shlex
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from svrpo.cli import _parse_seed_option
+from svrpo.experiments.specs import load_spec
+
+ROOT = Path(__file__).resolve().parents[1]
+RECORDER = """#!/usr/bin/env bash
+printf '%s\\n' "$*" >> "$SVRPO_CALLS"
+"""
+
+
+def _calls(script: Path, tmp_path: Path, *args: str) -> list[list[str]]:
+    """The argument lists the script passed to `svrpo`, one per call."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir(exist_ok=True)
+    (bin_dir / "svrpo").write_text(RECORDER)
+    (bin_dir / "svrpo").chmod(0o755)
+    log = tmp_path / "calls.txt"
+    log.unlink(missing_ok=True)
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}", "SVRPO_CALLS": str(log)}
+    subprocess.run(["bash", str(script), *args], check=True, env=env, cwd=ROOT, timeout=60)
+    return [shlex.split(line) for line in log.read_text().splitlines()]
+
+
+def _value(call: list[str], option: str) -> str:
+    return call[call.index(option) + 1]
+
+
+def _planned_seeds(call: list[str]) -> tuple[int, ...]:
+    """The seeds `svrpo sweep SPEC --seeds VALUE` plans, by the CLI's and the spec's parsers."""
+    assert call[0] == "sweep"
+    spec = load_spec(call[1])
+    return spec.with_changes(seeds=_parse_seed_option(_value(call, "--seeds"))).seeds
+
+
+@pytest.mark.parametrize("experiment", ["budgeted-trust-region", "fresh-samples"])
+def test_confirmation_runs_seeds_100_to_109_one_at_a_time_seed_major(tmp_path: Path, experiment: str) -> None:
+    # The specs are written by the screening's decision; stand-ins are enough to see the seeds.
+    experiment_dir = tmp_path / "results" / experiment
+    (experiment_dir / "confirmation").mkdir(parents=True)
+    shutil.copy(ROOT / "results" / experiment / "run_confirmation.sh", experiment_dir)
+    names = ["a", "b", "c"]
+    for name in names:
+        (experiment_dir / "confirmation" / f"{name}.yaml").write_text(
+            f"name: {name}\ntasks: [Hopper-v5]\npresets: [trpo]\nseeds: [100, 101, 102, 103, 104, 105, "
+            "106, 107, 108, 109]\nscale: modern\n")
+    (tmp_path / "benchmarks").mkdir()
+    shutil.copy(ROOT / "benchmarks" / "run_confirmation.sh", tmp_path / "benchmarks")
+    calls = _calls(experiment_dir / "run_confirmation.sh", tmp_path, str(tmp_path / "root"))
+    planned = [(Path(call[1]).stem, _planned_seeds(call)) for call in calls]
+    assert planned == [(name, (seed,)) for seed in range(100, 110) for name in names]
+    assert {_value(call, "--root") for call in calls} == {str(tmp_path / "root")}
+
+
+def test_confirmation_without_specs_stops_with_a_message(tmp_path: Path) -> None:
+    (tmp_path / "experiment").mkdir()
+    script = ROOT / "benchmarks" / "run_confirmation.sh"
+    result = subprocess.run(["bash", str(script), str(tmp_path / "experiment")],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert "--write-confirmation" in result.stderr
+
+
+@pytest.mark.parametrize("experiment", ["budgeted-trust-region", "fresh-samples"])
+def test_screening_runs_seeds_0_to_2_of_every_configuration(tmp_path: Path, experiment: str) -> None:
+    calls = _calls(ROOT / "results" / experiment / "run_screening.sh", tmp_path, "root")
+    specs = sorted((ROOT / "results" / experiment / "screening").glob("*.yaml"))
+    assert {Path(call[1]).resolve() for call in calls} == {spec.resolve() for spec in specs}
+    for spec in specs:
+        seeds = [_planned_seeds(call) for call in calls if Path(call[1]).resolve() == spec.resolve()]
+        assert seeds[-1] == (0, 1, 2)  # each pass adds one seed; the finished ones are skipped
+
+
+def test_paper_swimmer_runs_five_seeds(tmp_path: Path) -> None:
+    calls = _calls(ROOT / "results" / "figure1-paper-swimmer" / "run.sh", tmp_path, "root")
+    assert [_planned_seeds(call) for call in calls] == [tuple(range(n)) for n in range(1, 6)]
+    assert {_value(call, "--scale") for call in calls} == {"paper"}
