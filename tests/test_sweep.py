@@ -15,6 +15,7 @@ import pytest
 from svrpo.cli import main
 from svrpo.config import make_preset
 from svrpo.experiments import NAMED_EXPERIMENTS, LocalBackend, SpecError, load_spec, plan
+from svrpo.experiments.specs import describe_seeds
 from tests.helpers import progress_rows, without_clock
 
 TINY_YAML = """\
@@ -272,9 +273,11 @@ def test_a_run_shared_by_two_experiments_is_copied_not_trained_again(tmp_path: P
                                  / "run.json").read_text()
 
 
-@pytest.mark.parametrize(("option", "seeds"), [("2", [0, 1]), ("100-102", [100, 101, 102]), ("3,7", [3, 7])])
+@pytest.mark.parametrize(("option", "seeds", "said"), [
+    ("2", [0, 1], "2 seeds (0-1)"), ("100-102", [100, 101, 102], "3 seeds (100-102)"),
+    ("3,7", [3, 7], "2 seeds (3, 7)"), ("100-100", [100], "1 seeds (100)")])
 def test_sweep_seeds_option_takes_a_count_a_range_or_a_list(tmp_path: Path, option: str,
-                                                            seeds: list[int]) -> None:
+                                                            seeds: list[int], said: str) -> None:
     """The confirmation runs of a protocol use seeds 100-109, one seed per pass (seed-major across
     specs): --seeds names them as the user types them, in a subprocess as the user runs it."""
     spec = tmp_path / "tiny.yaml"
@@ -286,6 +289,7 @@ def test_sweep_seeds_option_takes_a_count_a_range_or_a_list(tmp_path: Path, opti
     listed = sorted({int(line.split("/seed")[1].split()[0]) for line in done.stdout.splitlines()
                      if line.startswith("new")})
     assert listed == seeds
+    assert f"x {said} = " in done.stdout + done.stderr  # the plan's seeds, said before any run
 
 
 @pytest.mark.parametrize("option", ["0", "x", "5-3", "1,,2"])
@@ -297,3 +301,10 @@ def test_sweep_seeds_option_refuses_what_is_not_seeds(tmp_path: Path, option: st
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2
     assert "--seeds" in done.stderr and "Traceback" not in done.stderr
+
+
+@pytest.mark.parametrize(("seeds", "text"), [
+    ((0,), "0"), ((0, 1, 2), "0-2"), ((100, 101, 102, 103, 104, 105, 106, 107, 108, 109), "100-109"),
+    ((0, 1, 2, 7), "0-2, 7"), ((3, 7), "3, 7"), ((7, 3), "7, 3"), ((5, 6, 9, 10, 11, 20), "5-6, 9-11, 20")])
+def test_describe_seeds_joins_consecutive_seeds_into_ranges(seeds: tuple[int, ...], text: str) -> None:
+    assert describe_seeds(seeds) == text

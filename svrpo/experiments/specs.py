@@ -158,6 +158,20 @@ def _string_list(value: Any, key: str, source: str) -> tuple[str, ...]:
     return tuple(value)
 
 
+def describe_seeds(seeds: tuple[int, ...]) -> str:
+    """The seeds as a person reads them: runs of consecutive seeds as A-B, the rest listed,
+    e.g. (0, 1, 2, 7) -> "0-2, 7" (the sweep prints it, so that `--seeds 100` reading as
+    100 seeds 0..99 shows before anything runs)."""
+    parts: list[str] = []
+    start = 0
+    for i in range(1, len(seeds) + 1):
+        if i == len(seeds) or seeds[i] != seeds[i - 1] + 1:
+            first, last = seeds[start], seeds[i - 1]
+            parts.append(str(first) if first == last else f"{first}-{last}")
+            start = i
+    return ", ".join(parts)
+
+
 def _parse_seeds(value: Any) -> tuple[int, ...]:
     """N (seeds 0..N-1) or an explicit list of distinct non-negative integers."""
     if isinstance(value, int) and not isinstance(value, bool):

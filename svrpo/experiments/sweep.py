@@ -22,7 +22,7 @@ from svrpo.experiments.jobs import (
     prepare,
     status,
 )
-from svrpo.experiments.specs import ExperimentSpec, SpecError
+from svrpo.experiments.specs import ExperimentSpec, SpecError, describe_seeds
 from svrpo.rundir.run_lock import exclusive_writer, record_holder
 from svrpo.sampling.envs import env_info
 
@@ -74,7 +74,8 @@ def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool 
     counts = Counter(statuses)
     todo = [job for job, state in zip(jobs, statuses, strict=True) if state is not RunStatus.DONE]
     _say(f"{spec.directory}: {len(spec.tasks)} tasks x {len(spec.presets)} presets x "
-         f"{len(spec.seeds)} seeds = {len(jobs)} runs under {root / spec.directory}: "
+         f"{len(spec.seeds)} seeds ({describe_seeds(spec.seeds)}) = {len(jobs)} runs under "
+         f"{root / spec.directory}: "
          f"{counts[RunStatus.DONE]} done, {counts[RunStatus.PARTIAL]} to resume, "
          f"{counts[RunStatus.NEW]} new")
     summary = SweepSummary(len(jobs), counts[RunStatus.DONE], counts[RunStatus.PARTIAL],
