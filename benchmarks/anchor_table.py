@@ -44,9 +44,10 @@ from svrpo.experiments.table import final_window, t_interval  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
-DEFAULT_SB3 = tuple(RESULTS / f"sb3_anchor_1M{part}.json" for part in ("", "_more", "_ant", "_humanoid"))
+DEFAULT_SB3 = tuple(RESULTS / f"sb3_anchor_1M{part}.json" for part in ("", "_more", "_ant", "_humanoid", "_five"))
 """Read when --sb3 is not given (those of them that exist). Ant and Humanoid ran as two processes
-side by side, one per core, each with its own file."""
+side by side, one per core, each with its own file; _five holds the seeds 3-4 that
+sb3_anchor_PROTOCOL.md adds where three seeds leave the comparison unclear."""
 LAST_EPISODES = 100
 STEPS_PER_ITERATION = 2048
 """sb3-contrib's TRPO default n_steps: one of its iterations."""
