@@ -44,7 +44,8 @@ from svrpo.experiments.table import final_window, t_interval  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
-DEFAULT_SB3 = tuple(RESULTS / f"sb3_anchor_1M{part}.json" for part in ("", "_more", "_ant", "_humanoid", "_five"))
+DEFAULT_SB3 = tuple(RESULTS / f"sb3_anchor_1M{part}.json"
+                    for part in ("", "_more", "_ant", "_humanoid", "_five"))
 """Read when --sb3 is not given (those of them that exist). Ant and Humanoid ran as two processes
 side by side, one per core, each with its own file; _five holds the seeds 3-4 that
 sb3_anchor_PROTOCOL.md adds where three seeds leave the comparison unclear."""
@@ -152,7 +153,8 @@ def our_runs(runs: Path, env: str, preset: str) -> list[Run]:
 
 
 def interval_text(values: Sequence[float]) -> str:
-    """'2467 [83, 4850]' (mean [95% t-interval]), '2211 (1 seed)' or 'not recorded'."""
+    """'2467 [83, 4850]' (mean [95% t-interval]), '2211 (1 seed)' or 'not recorded'; where only
+    some seeds recorded the measure (older runs did not), '... (n = k)' says how many it is over."""
     finite = [v for v in values if math.isfinite(v)]
     if not finite:
         return NOT_RECORDED
@@ -160,7 +162,8 @@ def interval_text(values: Sequence[float]) -> str:
     if len(finite) < 2:
         return f"{mean:.0f} (1 seed)"
     low, high = t_interval(finite)
-    return f"{mean:.0f} [{low:.0f}, {high:.0f}]"
+    partial = f" (n = {len(finite)})" if len(finite) < len(values) else ""
+    return f"{mean:.0f} [{low:.0f}, {high:.0f}]{partial}"
 
 
 @dataclass(frozen=True)
@@ -172,6 +175,8 @@ class Comparison:
     low: float
     high: float
     p_value: float
+    seeds: tuple[int, int] | None = None
+    """(ours, theirs) seeds that recorded the measure, where some did not; None when all did."""
 
 
 def welch(ours: Sequence[float], theirs: Sequence[float]) -> Comparison | None:
@@ -183,15 +188,17 @@ def welch(ours: Sequence[float], theirs: Sequence[float]) -> Comparison | None:
         return None
     result = stats.ttest_ind(a, b, equal_var=False)
     interval = result.confidence_interval(0.95)
+    seeds = None if (a.size, b.size) == (len(ours), len(theirs)) else (int(a.size), int(b.size))
     return Comparison(float(a.mean() - b.mean()), float(interval.low), float(interval.high),
-                      float(result.pvalue))
+                      float(result.pvalue), seeds)
 
 
 def comparison_text(comparison: Comparison | None) -> str:
     if comparison is None:
         return NOT_RECORDED
+    partial = "" if comparison.seeds is None else f" (n = {comparison.seeds[0]}, {comparison.seeds[1]})"
     return (f"{comparison.difference:+.0f} [{comparison.low:+.0f}, {comparison.high:+.0f}], "
-            f"p = {comparison.p_value:.2f}")
+            f"p = {comparison.p_value:.2f}{partial}")
 
 
 def verdict(comparisons: Sequence[Comparison | None]) -> str:

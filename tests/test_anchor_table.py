@@ -60,10 +60,23 @@ def test_welch_comparison_by_hand() -> None:
     assert result.p_value == pytest.approx(2 * stats.t.cdf(t, df), rel=1e-9)
     half = stats.t.ppf(0.975, df) * math.sqrt(1 / 3 + 1)
     assert (result.low, result.high) == pytest.approx((-4 - half, -4 + half), rel=1e-9)
+    assert result.seeds == (3, 2)  # ours has a seed without the measure: the text says so
+    assert anchor.comparison_text(result).endswith("(n = 3, 2)")
+    complete = anchor.welch([1.0, 2.0, 3.0], [5.0, 7.0])
+    assert complete.seeds is None and "n =" not in anchor.comparison_text(complete)
     assert anchor.welch([1.0], [5.0, 7.0]) is None
     assert anchor.verdict([result]) == ("distinguishable: ours lower" if result.p_value < 0.05
                                         else "not distinguishable")
     assert anchor.verdict([None, anchor.Comparison(1.0, 0.5, 1.5, 0.01)]) == "distinguishable: ours higher"
+
+
+def test_interval_text_names_its_seeds_when_some_lack_the_measure() -> None:
+    """1, 2, 3: mean 2, s = 1, t_{0.975, 2} = 4.3027 -> 2 +- 2.484 = [-0.48, 4.48]."""
+    anchor = _script()
+    assert anchor.interval_text([1.0, 2.0, 3.0]) == "2 [-0, 4]"
+    assert anchor.interval_text([math.nan, 1.0, 2.0, 3.0, math.nan]) == "2 [-0, 4] (n = 3)"
+    assert anchor.interval_text([math.nan, 5.0]) == "5 (1 seed)"
+    assert anchor.interval_text([math.nan]) == "not recorded"
 
 
 def _our_run(root: Path, env: str, seed: int, returns: list[float], episodes: list[float],
