@@ -44,11 +44,11 @@ from svrpo.experiments.table import final_window, t_interval  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
-DEFAULT_SB3 = tuple(RESULTS / f"sb3_anchor_1M{part}.json"
-                    for part in ("", "_more", "_ant", "_humanoid", "_five"))
-"""Read when --sb3 is not given (those of them that exist). Ant and Humanoid ran as two processes
-side by side, one per core, each with its own file; _five holds the seeds 3-4 that
-sb3_anchor_PROTOCOL.md adds where three seeds leave the comparison unclear."""
+DEFAULT_SB3 = "sb3_anchor_1M*.json"
+"""Read from RESULTS when --sb3 is not given, in name order: sb3_anchor_1M.json and _more.json,
+then the files of runs that went side by side, one process per core, each with its own file
+(_ant, _humanoid, _humanoid_seed2, and _five: the seeds 3-4 that sb3_anchor_PROTOCOL.md adds
+where three seeds leave the comparison unclear)."""
 LAST_EPISODES = 100
 STEPS_PER_ITERATION = 2048
 """sb3-contrib's TRPO default n_steps: one of its iterations."""
@@ -202,7 +202,10 @@ def comparison_text(comparison: Comparison | None) -> str:
 
 
 def verdict(comparisons: Sequence[Comparison | None]) -> str:
-    """'not distinguishable' unless some measure's p < 0.05; then which way."""
+    """'not distinguishable' unless some measure's p < 0.05; then which way; 'not tested' when no
+    measure has 2 seeds a side (one seed is no evidence either way)."""
+    if all(c is None for c in comparisons):
+        return "not tested (fewer than 2 seeds a side)"
     significant = [c for c in comparisons if c is not None and c.p_value < 0.05]
     if not significant:
         return "not distinguishable"
@@ -270,7 +273,7 @@ def render(reports: Sequence[dict[str, Any]], runs: Path) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sb3", type=Path, nargs="+", default=[p for p in DEFAULT_SB3 if p.is_file()])
+    parser.add_argument("--sb3", type=Path, nargs="+", default=sorted(RESULTS.glob(DEFAULT_SB3)))
     parser.add_argument("--runs", type=Path, default=Path("runs"))
     parser.add_argument("--out", type=Path, default=RESULTS / "sb3_anchor_1M.md")
     args = parser.parse_args()

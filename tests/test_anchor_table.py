@@ -68,6 +68,7 @@ def test_welch_comparison_by_hand() -> None:
     assert anchor.verdict([result]) == ("distinguishable: ours lower" if result.p_value < 0.05
                                         else "not distinguishable")
     assert anchor.verdict([None, anchor.Comparison(1.0, 0.5, 1.5, 0.01)]) == "distinguishable: ours higher"
+    assert anchor.verdict([None, None]).startswith("not tested")
 
 
 def test_interval_text_names_its_seeds_when_some_lack_the_measure() -> None:
