@@ -49,6 +49,8 @@ DEFAULT_SB3 = "sb3_anchor_1M*.json"
 then the files of runs that went side by side, one process per core, each with its own file
 (_ant, _humanoid, _humanoid_seed2, and _five: the seeds 3-4 that sb3_anchor_PROTOCOL.md adds
 where three seeds leave the comparison unclear)."""
+TASK_ORDER = ("Hopper-v5", "Walker2d-v5", "Swimmer-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
+"""The tables' task order (the order the anchor's runs were made in); other tasks follow by name."""
 LAST_EPISODES = 100
 STEPS_PER_ITERATION = 2048
 """sb3-contrib's TRPO default n_steps: one of its iterations."""
@@ -127,7 +129,9 @@ def sb3_runs(reports: Sequence[dict[str, Any]]) -> dict[str, list[Run]]:
                 math.nan if tenth is None else float(tenth), float(run["train_return_last_100_episodes"]),
                 float(run["seconds"]), float(run.get("cpu_seconds", math.nan)))
     out: dict[str, list[Run]] = {}
-    for (env, _), run in sorted(by_key.items(), key=lambda item: item[0][1]):
+    order = {env: index for index, env in enumerate(TASK_ORDER)}
+    for (env, _), run in sorted(by_key.items(), key=lambda item: (order.get(item[0][0], len(order)),
+                                                                  item[0][0], item[0][1])):
         out.setdefault(env, []).append(run)
     return out
 
