@@ -111,6 +111,9 @@ def run_sb3(env_id: str, seed: int, iterations: int) -> dict[str, Any]:
     tic, cpu_tic = time.perf_counter(), time.process_time()
     model.learn(total_timesteps=iterations * 2048, callback=recorder)
     seconds, cpu_seconds = time.perf_counter() - tic, time.process_time() - cpu_tic
+    # The exploration noise the final policy samples with (SB3's state-independent log_std), to
+    # compare with our progress.csv's action_std; read after training, so training is unchanged.
+    action_std = float(torch.exp(model.policy.log_std.detach()).mean())
     recent = [info["r"] for info in model.ep_info_buffer]
     eval_env = VecNormalize(make_vec_env(env_id, n_envs=1, seed=seed + 1_000_003), norm_obs=True,
                             norm_reward=False, training=False)
@@ -121,7 +124,7 @@ def run_sb3(env_id: str, seed: int, iterations: int) -> dict[str, Any]:
         "final_eval_return": float(mean_return),
         "train_return_last_100_episodes": float(np.mean(recent)) if recent else float("nan"),
         "train_return_last_10_percent_iterations": last_tenth_of_iterations(recorder.episodes, iterations),
-        "episodes": recorder.episodes, "cpu_seconds": cpu_seconds,
+        "episodes": recorder.episodes, "cpu_seconds": cpu_seconds, "final_action_std": action_std,
         "torch_threads": torch.get_num_threads(),
     }
 
