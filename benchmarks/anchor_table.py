@@ -45,10 +45,11 @@ from svrpo.rundir.logging import read_progress  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 DEFAULT_SB3 = "sb3_anchor_1M*.json"
-"""Read from RESULTS when --sb3 is not given, in name order: sb3_anchor_1M.json and _more.json,
-then the files of runs that went side by side, one process per core, each with its own file
-(_ant, _humanoid, _humanoid_seed2, and _five: the seeds 3-4 that sb3_anchor_PROTOCOL.md adds
-where three seeds leave the comparison unclear)."""
+"""Read from RESULTS when --sb3 is not given, every match in name order (a later file's
+(task, seed) would win, but no two files hold the same one): sb3_anchor_1M.json and _more.json,
+and the files of runs that went side by side, one process per core, each with its own file
+(_ant, _humanoid, _humanoid_seed2; _five, _five_halfcheetah, _five_humanoid: the seeds 3-4 that
+sb3_anchor_PROTOCOL.md adds where three seeds leave the comparison unclear)."""
 TASK_ORDER = ("Hopper-v5", "Walker2d-v5", "Swimmer-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
 """The tables' task order (the order the anchor's runs were made in); other tasks follow by name."""
 LAST_EPISODES = 100
