@@ -107,8 +107,8 @@ def policy_at(template: GaussianMlpPolicy, flat: torch.Tensor) -> GaussianMlpPol
     """A copy of `template` with parameters `flat`."""
     from svrpo.models.parameters import set_flat_parameters
 
-    copy = GaussianMlpPolicy(template.obs_dim, template.act_dim,
-                             tuple(int(m.out_features) for m in template.mean_net if isinstance(m, nn.Linear))[:-1])
+    widths = tuple(int(m.out_features) for m in template.mean_net if isinstance(m, nn.Linear))
+    copy = GaussianMlpPolicy(template.obs_dim, template.act_dim, widths[:-1])
     set_flat_parameters(copy, flat)
     return copy
 
@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> None:
     parts = update_parts(config)
     records: list[dict[str, Any]] = []
 
-    class ComparedTRPO(TRPO):  # type: ignore[misc]
+    class ComparedTRPO(TRPO):
         def train(self) -> None:
             obs_dim = int(np.prod(self.observation_space.shape))
             act_dim = int(np.prod(self.action_space.shape))
@@ -173,7 +173,8 @@ def main(argv: list[str] | None = None) -> None:
             }
             records.append(record)
             print(f"update {record['update']:3d}: relative difference {relative:.2e}, cosine {cosine:.6f}, "
-                  f"log_std step ours {record['log_std_step_ours']:+.5f} sb3 {record['log_std_step_sb3']:+.5f}, "
+                  f"log_std step ours {record['log_std_step_ours']:+.5f} "
+                  f"sb3 {record['log_std_step_sb3']:+.5f}, "
                   f"copy gap {log_prob_gap:.1e}", file=sys.stderr, flush=True)
 
     env = VecNormalize(make_vec_env(args.env, n_envs=1, seed=args.seed), norm_obs=True, norm_reward=False)
