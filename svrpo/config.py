@@ -421,7 +421,10 @@ def _scale_fields(scale: Scale, env_id: str) -> dict[str, Any]:
     }
 
 
-# The modern scale: sb3-contrib's TRPO defaults (v2.x) in this library's fields, for every preset.
+# The modern scale: sb3-contrib's TRPO defaults (v2.x) in this library's fields, for every preset,
+# with one difference of meaning (DESIGN-NOTES 22): max_kl and cg_damping here apply to the KL summed
+# over action dimensions (TRPO's definition, every preset's); sb3-contrib's target_kl 0.01 and damping
+# 0.1 apply to the KL's mean over dimensions, which is act_dim x 0.01 and act_dim x 0.1 on ours.
 MODERN_FIELDS: dict[str, Any] = {
     "batch_size": 2048, "total_steps": 489 * 2048, "gamma": 0.99, "gae_lambda": 0.95,  # 489 x N: just over 1M
     "baseline": "mlp", "baseline_hidden_sizes": (64, 64), "baseline_lr": 1e-3, "baseline_epochs": 10,
@@ -440,7 +443,8 @@ def make_preset(name: str, env_id: str = "Hopper-v5", scale: Scale = "modern") -
     """The named preset for a task and scale, before any command-line overrides.
 
     The default scale is `modern` (sb3-contrib's TRPO settings: an MLP critic, GAE 0.95,
-    observation normalisation), which learns on tasks nobody tuned for; `laptop` and `paper`
+    observation normalisation; max_kl 0.01 on the summed KL, where sb3-contrib's 0.01 bounds the
+    per-dimension mean), which learns on tasks nobody tuned for; `laptop` and `paper`
     are the paper's 2017 settings (a linear baseline, Monte-Carlo returns) at N = 5,000 and
     N = 50,000, one argument away."""
     if name not in PRESET_NAMES:
