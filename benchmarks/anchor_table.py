@@ -240,6 +240,12 @@ def render(reports: Sequence[dict[str, Any]], runs: Path) -> str:
         "finished episodes (sb3's `ep_info_buffer`; ours from the per-iteration means weighted by "
         "their episode counts). Mean over the n seeds [95% Student-t interval].",
         "",
+        "The two TRPOs bound different KLs: sb3-contrib averages the Gaussian's KL over action "
+        "dimensions, so its target_kl 0.01 is 0.01 x act_dim on the summed KL that our `max_kl` "
+        "0.01 bounds, and its damping 0.1 is 0.1 x act_dim on ours (DESIGN-NOTES 22; on the same "
+        "batch the two updates agree to 3e-6 once ours is scaled so, "
+        "results/ant-anchor-gap/update_vs_sb3_per_dimension.json).",
+        "",
         "| task | library / preset | n (seeds) | final deterministic eval | training return, last 10% "
         "of iterations | training return, last 100 episodes | wall-clock per run (median) | CPU time "
         "per run (median) |",
