@@ -137,10 +137,10 @@ def sb3_runs(reports: Sequence[dict[str, Any]]) -> dict[str, list[Run]]:
     return out
 
 
-def our_runs(runs: Path, env: str, preset: str) -> list[Run]:
-    """Our finished seeds of figure1-modern/ENV/PRESET (unfinished ones are left out)."""
+def our_runs(runs: Path, env: str, preset: str, experiment: str = "figure1-modern") -> list[Run]:
+    """Our finished seeds of EXPERIMENT/ENV/PRESET (unfinished ones are left out)."""
     out = []
-    for seed_dir in sorted((runs / "figure1-modern" / env / preset).glob("seed*")):
+    for seed_dir in sorted((runs / experiment / env / preset).glob("seed*")):
         path = seed_dir / "progress.csv"
         if not path.is_file():
             continue

@@ -1,0 +1,156 @@
+"""The anchor-gap diagnosis's training-run steps, read by its protocol's rules.
+
+    python benchmarks/anchor_gap_report.py [--runs results/runs] [--out results/ant-anchor-gap/report.md]
+
+results/ant-anchor-gap/PROTOCOL.md: step 2 (one environment + orthogonal initialisation, Ant-v5,
+seeds 0-2; section 6's rule) and step 5 (max_kl and cg_damping times the action dimension, i.e.
+sb3-contrib's trust region, Ant-v5 and Swimmer-v5, seeds 0-4; section 10's rules). Each variant's
+runs stand beside our committed `trpo` (figure1-modern, seeds 0-4) and sb3-contrib's runs
+(benchmarks/results/sb3_anchor_1M*.json), with the anchor table's three measures
+(benchmarks/anchor_table.py: deterministic evaluation, training return over the last 10% of
+iterations and over the last 100 episodes; seed mean [95% Student-t]) plus the mean action std
+over the last 100k steps, and Welch's test of the variant against each. The reading of each step
+is computed from those numbers by the rule its protocol section fixed before the runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import anchor_table  # noqa: E402
+
+from svrpo.experiments.table import t_interval  # noqa: E402
+from svrpo.rundir.logging import read_progress  # noqa: E402
+
+MEASURES = anchor_table.MEASURES
+RUN_STEPS = 1_001_472
+STD_WINDOW = 100_000
+"""action_std is averaged over the iterations that end within the last 100k steps."""
+
+
+@dataclass(frozen=True)
+class Step:
+    """One training-run step of the protocol: a variant's experiment on one task, and its rule."""
+
+    label: str
+    experiment: str
+    env: str
+    rule: str
+    """'step2' (section 6), 'ant5' or 'swimmer5' (section 10)."""
+
+
+STEPS = (
+    Step("step 2: one environment + orthogonal init", "ant-gap-one-env-orthogonal-modern", "Ant-v5", "step2"),
+    Step("step 5: max_kl 0.08, cg_damping 0.8", "ant-gap-kl-per-dimension-modern", "Ant-v5", "ant5"),
+    Step("step 5: max_kl 0.02, cg_damping 0.2", "swimmer-gap-kl-per-dimension-modern", "Swimmer-v5",
+         "swimmer5"),
+)
+
+
+def action_std_late(run_dir: Path) -> float:
+    """Mean progress.csv action_std over the iterations ending in the last STD_WINDOW steps."""
+    rows = read_progress(run_dir / "progress.csv")
+    end = rows[-1]["env_steps"]
+    values = [row["action_std"] for row in rows if row["env_steps"] > end - STD_WINDOW]
+    return statistics.fmean(values)
+
+
+def stds(runs: Path, experiment: str, env: str) -> list[float]:
+    return [action_std_late(seed_dir) for seed_dir in sorted((runs / experiment / env / "trpo").glob("seed*"))
+            if (seed_dir / "progress.csv").is_file()
+            and read_progress(seed_dir / "progress.csv")[-1]["env_steps"] >= RUN_STEPS]
+
+
+def mean_of(runs: Sequence[anchor_table.Run], key: str) -> float:
+    return statistics.fmean(getattr(r, key) for r in runs)
+
+
+def reading(rule: str, variant: Sequence[anchor_table.Run], ours: Sequence[anchor_table.Run]) -> str:
+    """The protocol's reading for `rule`, computed from the runs."""
+    if len(variant) < 2:
+        return "not read: fewer than 2 finished seeds"
+    train = [r.train_last_tenth for r in variant]
+    low, high = t_interval(train)
+    ours_train = mean_of(ours, "train_last_tenth")
+    evaluation = anchor_table.welch([r.final_eval for r in variant], [r.final_eval for r in ours])
+    assert evaluation is not None
+    eval_not_lower = evaluation.p_value >= 0.05 or evaluation.difference > 0
+    mean = statistics.fmean(train)
+    if rule in ("step2", "ant5"):
+        excludes = not (low <= ours_train <= high)
+        met = mean > 600 and excludes and eval_not_lower
+        detail = (f"training return {mean:.1f} [{low:.1f}, {high:.1f}] against our trpo's {ours_train:.1f}: "
+                  f"mean above 600 {'yes' if mean > 600 else 'no'}, interval excludes {ours_train:.0f} "
+                  f"{'yes' if excludes else 'no'}; evaluation not lower {'yes' if eval_not_lower else 'no'} "
+                  f"({evaluation.difference:+.0f}, p = {evaluation.p_value:.2f})")
+    else:
+        train_test = anchor_table.welch(train, [r.train_last_tenth for r in ours])
+        assert train_test is not None
+        higher = train_test.p_value < 0.05 and train_test.difference > 0
+        met = mean > 100 and higher and eval_not_lower
+        detail = (f"training return {mean:.1f} [{low:.1f}, {high:.1f}]: above 100 "
+                  f"{'yes' if mean > 100 else 'no'}; higher than our trpo's {ours_train:.1f} with "
+                  f"p < 0.05 {'yes' if higher else 'no'} (p = {train_test.p_value:.3f}); evaluation not "
+                  f"lower {'yes' if eval_not_lower else 'no'} ({evaluation.difference:+.0f}, "
+                  f"p = {evaluation.p_value:.2f})")
+    return f"**{'explains the gap' if met else 'does not explain the gap'}**: {detail}"
+
+
+def render(runs: Path, reports: Sequence[dict[str, Any]]) -> str:
+    theirs_by_task = anchor_table.sb3_runs(reports)
+    lines = ["# Anchor gap: the diagnosis's training runs, read by the protocol's rules", "",
+             "`python benchmarks/anchor_gap_report.py` (results/ant-anchor-gap/PROTOCOL.md, "
+             "sections 6 and 10). Seed mean [95% Student-t interval]; action std: the mean over "
+             "the last 100k steps of progress.csv's `action_std` (the policy's std, mean over "
+             "dimensions); Welch's two-sided test of the variant against each comparison.", ""]
+    for step in STEPS:
+        ours = anchor_table.our_runs(runs, step.env, "trpo")
+        theirs = theirs_by_task.get(step.env, [])
+        variant = anchor_table.our_runs(runs, step.env, "trpo", step.experiment)
+        lines += [f"## {step.env}, {step.label}", "",
+                  "| runs | n | " + " | ".join(name for _, name in anchor_table.MEASURES)
+                  + " | action std, last 100k steps |", "|---|---|---|---|---|---|"]
+        committed_std = stds(runs, "figure1-modern", step.env)
+        for label, group, std in (("sb3-contrib TRPO", theirs, None),
+                                  ("our `trpo` (figure1-modern)", ours, committed_std),
+                                  (f"`{step.experiment}`", variant, stds(runs, step.experiment, step.env))):
+            cells = [anchor_table.interval_text([getattr(r, key) for r in group]) for key, _ in MEASURES]
+            std_text = "not recorded" if std is None else (
+                f"{statistics.fmean(std):.3f} [{t_interval(std)[0]:.3f}, {t_interval(std)[1]:.3f}]"
+                if len(std) > 1 else "not recorded")
+            lines.append(f"| {label} | {len(group)} | {' | '.join(cells)} | {std_text} |")
+        lines += ["", "| variant against | " + " | ".join(name for _, name in anchor_table.MEASURES)
+                  + " | verdict |", "|---|---|---|---|---|"]
+        for label, group in (("our `trpo`", ours), ("sb3-contrib TRPO", theirs)):
+            comparisons = [anchor_table.welch([getattr(r, key) for r in variant],
+                                              [getattr(r, key) for r in group]) for key, _ in MEASURES]
+            lines.append(f"| {label} | " + " | ".join(anchor_table.comparison_text(c) for c in comparisons)
+                         + f" | {anchor_table.verdict(comparisons)} |")
+        lines += ["", f"Reading ({'section 6' if step.rule == 'step2' else 'section 10'}): "
+                  + reading(step.rule, variant, ours), ""]
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=Path, default=Path("results/runs"))
+    parser.add_argument("--out", type=Path, default=Path("results/ant-anchor-gap/report.md"))
+    args = parser.parse_args(argv)
+    paths = sorted(anchor_table.RESULTS.glob(anchor_table.DEFAULT_SB3))
+    reports = [json.loads(path.read_text()) for path in paths]
+    text = render(args.runs, reports)
+    args.out.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
