@@ -311,7 +311,8 @@ def test_max_episode_steps_none_means_the_tasks_own_limit(value: object) -> None
 
 def test_modern_scale_is_sb3_contribs_trpo_and_svrpo_differs_only_in_its_inner_loop() -> None:
     """`trpo` at the modern scale is sb3-contrib's TRPO defaults as benchmarks/vs_sb3.py
-    expresses them (max_kl and cg_damping on the summed KL: DESIGN-NOTES 22); every SVRPO preset adds only the estimator and the written (m, J) rule."""
+    expresses them (max_kl and cg_damping on the summed KL: DESIGN-NOTES 22); every SVRPO preset
+    adds only the estimator and the written (m, J) rule."""
     trpo = make_preset("trpo", "Walker2d-v5", "modern")
     expected = {"batch_size": 2048, "gamma": 0.99, "gae_lambda": 0.95, "baseline": "mlp",
                 "baseline_epochs": 10, "baseline_minibatch_size": 128, "normalize_observations": True,
