@@ -3,7 +3,12 @@
     PYTHONPATH=. /work/sb3venv/bin/python benchmarks/update_vs_sb3.py --env Ant-v5 --seed 0 \
         --iterations 60 --out results/ant-anchor-gap/update_vs_sb3.json
 
-Step 4 of the Ant anchor-gap diagnosis (results/ant-anchor-gap/PROTOCOL.md, section 9). Run it with
+With `--max-kl-per-dimension` our max_kl and cg_damping are multiplied by the action dimension,
+which is sb3-contrib's trust region on our scale (its KL is a mean over action dimensions).
+
+Step 4 of the Ant anchor-gap diagnosis (results/ant-anchor-gap/PROTOCOL.md, sections 9 and 10;
+results: update_vs_sb3.json, 0.45-0.52 apart at each of 60 Ant updates; with the flag,
+update_vs_sb3_per_dimension.json, at most 3.1e-6). Run it with
 a Python that has sb3-contrib (kept out of the project's environment, as for vs_sb3.py) and this
 repository on PYTHONPATH. sb3-contrib's TRPO trains with its defaults as vs_sb3.py runs it (one
 environment, VecNormalize on observations). Just before each of its policy updates, our `trpo`
