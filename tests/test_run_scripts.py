@@ -88,3 +88,35 @@ def test_paper_swimmer_runs_five_seeds(tmp_path: Path) -> None:
     calls = _calls(ROOT / "results" / "figure1-paper-swimmer" / "run.sh", tmp_path, "root")
     assert [_planned_seeds(call) for call in calls] == [tuple(range(n)) for n in range(1, 6)]
     assert {_value(call, "--scale") for call in calls} == {"paper"}
+
+
+@pytest.mark.parametrize(("script", "expected"), [
+    ("run.sh", {"one-env-orthogonal": {"envs_per_worker": 1, "weight_init": "orthogonal"}}),
+    ("run_kl_per_dimension.sh", {"kl-per-dimension-ant": {"max_kl": 0.08, "cg_damping": 0.8},
+                                 "kl-per-dimension-swimmer": {"max_kl": 0.02, "cg_damping": 0.2}}),
+    ("run_closest.sh", {"closest-ant": {"max_kl": 0.08, "cg_damping": 0.8, "envs_per_worker": 1,
+                                        "weight_init": "orthogonal"},
+                        "closest-swimmer": {"max_kl": 0.02, "cg_damping": 0.2, "envs_per_worker": 1,
+                                            "weight_init": "orthogonal"}}),
+])
+def test_anchor_gap_scripts_run_their_specs_as_the_protocol_says(
+        tmp_path: Path, script: str, expected: dict[str, dict[str, object]]) -> None:
+    """Each step's script sweeps its specs in order, every seed the spec names, with the settings
+    the protocol's section names (max_kl and cg_damping times the task's action dimension), one
+    torch thread; step 5 keeps the committed runs' 16 environments, steps 2 and 6 take one from
+    their specs (a command-line --envs_per_worker would override it)."""
+    calls = _calls(ROOT / "results" / "ant-anchor-gap" / script, tmp_path, "root")
+    assert [Path(call[1]).stem for call in calls] == list(expected)
+    for call, (stem, fields) in zip(calls, expected.items(), strict=True):
+        spec = load_spec(call[1])
+        assert spec.presets == ("trpo",) and spec.scale == "modern"
+        assert {k: spec.overrides[k] for k in fields} == fields, stem
+        assert _value(call, "--root") == "root" and _value(call, "--torch_threads") == "1"
+        assert "--seeds" not in call  # the spec's own seeds
+        if "envs_per_worker" in fields:
+            assert "--envs_per_worker" not in call
+        else:
+            assert _value(call, "--envs_per_worker") == "16"
+    seeds = {Path(call[1]).stem: load_spec(call[1]).seeds for call in calls}
+    assert all(s == ((0, 1, 2) if "closest" in n or "one-env" in n else (0, 1, 2, 3, 4))
+               for n, s in seeds.items())
