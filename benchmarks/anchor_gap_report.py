@@ -3,9 +3,10 @@
     python benchmarks/anchor_gap_report.py [--runs results/runs] [--out results/ant-anchor-gap/report.md]
 
 results/ant-anchor-gap/PROTOCOL.md: step 2 (one environment + orthogonal initialisation, Ant-v5,
-seeds 0-2; section 6's rule) and step 5 (max_kl and cg_damping times the action dimension, i.e.
-sb3-contrib's trust region, Ant-v5 and Swimmer-v5, seeds 0-4; section 10's rules). Each variant's
-runs stand beside our committed `trpo` (figure1-modern, seeds 0-4) and sb3-contrib's runs
+seeds 0-2; section 6's rule), step 5 (max_kl and cg_damping times the action dimension, i.e.
+sb3-contrib's trust region, Ant-v5 and Swimmer-v5, seeds 0-4; section 10's rules) and step 6 (all
+three at once, Ant-v5 and Swimmer-v5, seeds 0-2; section 11's rule, against sb3-contrib's runs).
+Each variant's runs stand beside our committed `trpo` (figure1-modern, seeds 0-4) and sb3-contrib's runs
 (benchmarks/results/sb3_anchor_1M*.json), with the anchor table's three measures
 (benchmarks/anchor_table.py: deterministic evaluation, training return over the last 10% of
 iterations and over the last 100 episodes; seed mean [95% Student-t]) plus the mean action std
@@ -53,7 +54,13 @@ STEPS = (
     Step("step 5: max_kl 0.08, cg_damping 0.8", "ant-gap-kl-per-dimension-modern", "Ant-v5", "ant5"),
     Step("step 5: max_kl 0.02, cg_damping 0.2", "swimmer-gap-kl-per-dimension-modern", "Swimmer-v5",
          "swimmer5"),
+    Step("step 6: max_kl 0.08, cg_damping 0.8, one environment, orthogonal init", "ant-gap-closest-modern",
+         "Ant-v5", "closest"),
+    Step("step 6: max_kl 0.02, cg_damping 0.2, one environment, orthogonal init",
+         "swimmer-gap-closest-modern", "Swimmer-v5", "closest"),
 )
+MATCH_TOLERANCE = 0.25
+"""Section 11: each measure's mean within 25% of sb3-contrib's (and no Welch p < 0.05) to match."""
 
 
 def action_std_late(run_dir: Path) -> float:
@@ -74,8 +81,30 @@ def mean_of(runs: Sequence[anchor_table.Run], key: str) -> float:
     return statistics.fmean(getattr(r, key) for r in runs)
 
 
-def reading(rule: str, variant: Sequence[anchor_table.Run], ours: Sequence[anchor_table.Run]) -> str:
+def closest_reading(variant: Sequence[anchor_table.Run], theirs: Sequence[anchor_table.Run]) -> str:
+    """Section 11: matches sb3-contrib's TRPO if no measure differs (Welch p < 0.05) and every
+    measure's mean is within MATCH_TOLERANCE of sb3-contrib's."""
+    if len(variant) < 2 or len(theirs) < 2:
+        return "not read: fewer than 2 finished seeds a side"
+    parts, met = [], True
+    for key, name in MEASURES:
+        mine, other = [getattr(r, key) for r in variant], [getattr(r, key) for r in theirs]
+        test = anchor_table.welch(mine, other)
+        assert test is not None
+        ratio = statistics.fmean(mine) / statistics.fmean(other)
+        ok = test.p_value >= 0.05 and abs(ratio - 1) <= MATCH_TOLERANCE
+        met = met and ok
+        parts.append(f"{name} {statistics.fmean(mine):.0f} against {statistics.fmean(other):.0f} "
+                     f"({ratio:.2f} of it, p = {test.p_value:.2f})")
+    verdict = "matches sb3-contrib's TRPO" if met else "a further difference remains"
+    return f"**{verdict}**: " + "; ".join(parts)
+
+
+def reading(rule: str, variant: Sequence[anchor_table.Run], ours: Sequence[anchor_table.Run],
+            theirs: Sequence[anchor_table.Run] = ()) -> str:
     """The protocol's reading for `rule`, computed from the runs."""
+    if rule == "closest":
+        return closest_reading(variant, theirs)
     if len(variant) < 2:
         return "not read: fewer than 2 finished seeds"
     train = [r.train_last_tenth for r in variant]
@@ -109,7 +138,7 @@ def render(runs: Path, reports: Sequence[dict[str, Any]]) -> str:
     theirs_by_task = anchor_table.sb3_runs(reports)
     lines = ["# Anchor gap: the diagnosis's training runs, read by the protocol's rules", "",
              "`python benchmarks/anchor_gap_report.py` (results/ant-anchor-gap/PROTOCOL.md, "
-             "sections 6 and 10). Seed mean [95% Student-t interval]; action std: the mean over "
+             "sections 6, 10 and 11). Seed mean [95% Student-t interval]; action std: the mean over "
              "the last 100k steps of progress.csv's `action_std` (the policy's std, mean over "
              "dimensions); Welch's two-sided test of the variant against each comparison.", ""]
     for step in STEPS:
@@ -135,8 +164,8 @@ def render(runs: Path, reports: Sequence[dict[str, Any]]) -> str:
                                               [getattr(r, key) for r in group]) for key, _ in MEASURES]
             lines.append(f"| {label} | " + " | ".join(anchor_table.comparison_text(c) for c in comparisons)
                          + f" | {anchor_table.verdict(comparisons)} |")
-        lines += ["", f"Reading ({'section 6' if step.rule == 'step2' else 'section 10'}): "
-                  + reading(step.rule, variant, ours), ""]
+        section = {"step2": "section 6", "closest": "section 11"}.get(step.rule, "section 10")
+        lines += ["", f"Reading ({section}): " + reading(step.rule, variant, ours, theirs), ""]
     return "\n".join(lines)
 
 

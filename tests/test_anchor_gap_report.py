@@ -40,3 +40,14 @@ def test_swimmer_rule_needs_above_100_and_a_significant_rise() -> None:
 
 def test_one_seed_is_not_read() -> None:
     assert report.reading("ant5", runs([900.0], [1500.0]), OURS).startswith("not read")
+
+
+def test_closest_rule_needs_no_difference_and_every_mean_within_a_quarter() -> None:
+    theirs = runs([690.0, 694.0, 698.0], [1300.0, 1450.0, 1600.0])
+    close = report.reading("closest", runs([600.0, 700.0, 780.0], [1200.0, 1500.0, 1700.0]), OURS, theirs)
+    assert close.startswith("**matches sb3-contrib's TRPO**")
+    far = report.reading("closest", runs([400.0, 700.0, 1000.0], [1000.0, 2000.0, 3000.0]), OURS, theirs)
+    assert far.startswith("**a further difference remains**") and "1.38 of it" in far  # p >= 0.05, 38% off
+    different = report.reading("closest", runs([400.0, 410.0, 420.0], [1300.0, 1450.0, 1600.0]), OURS, theirs)
+    assert different.startswith("**a further difference remains**")
+    assert report.reading("closest", runs([700.0], [1500.0]), OURS, theirs).startswith("not read")
