@@ -31,9 +31,9 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from svrpo.analysis.evaluation import LoadedPolicy, load_policy
+from svrpo.analysis.evaluation import LoadedPolicy, load_policy, run_episodes
 from svrpo.experiments.table import t_interval
-from svrpo.sampling.envs import make_env, scale_action
+from svrpo.sampling.envs import make_env
 
 EPISODE_SEED = 2_000_003
 """Reset seeds EPISODE_SEED + k: apart from the deterministic evaluation's (seed + 1,000,003)."""
@@ -59,28 +59,13 @@ def parse_std(text: str) -> float | None:
 def run_noisy_episodes(policy: LoadedPolicy, std: float | None,
                        episodes: int) -> tuple[np.ndarray, np.ndarray]:
     """(returns, lengths) of `episodes` episodes with actions sampled at `std` (None: learned, 0: mean)."""
-    snapshot = policy.snapshot
-    log_std = snapshot.log_std if std is None or std == 0 else scaled_log_std(snapshot.log_std, std)
-    scale = np.zeros_like(log_std) if std == 0 else np.exp(log_std)
+    log_std = policy.snapshot.log_std
+    if std == 0:  # still sampled (zero noise), so the episodes draw exactly as at every other std
+        scale = np.zeros_like(log_std)
+    else:
+        scale = np.exp(log_std if std is None else scaled_log_std(log_std, std))
     env = make_env(policy.config.env_id, policy.config.max_episode_steps)
-    returns = np.zeros(episodes, dtype=np.float64)
-    lengths = np.zeros(episodes, dtype=np.int64)
-    try:
-        for episode in range(episodes):
-            rng = np.random.default_rng([EPISODE_SEED, episode])
-            observation = env.reset(seed=EPISODE_SEED + episode)[0]
-            done = False
-            while not done:
-                mean = snapshot.mean_action(np.asarray(observation, dtype=np.float64)[None])[0]
-                action = mean + scale * rng.standard_normal(mean.shape)
-                observation, reward, terminated, truncated, _ = env.step(
-                    scale_action(action, policy.action_low, policy.action_high))
-                returns[episode] += float(reward)
-                lengths[episode] += 1
-                done = bool(terminated or truncated)
-    finally:
-        env.close()
-    return returns, lengths
+    return run_episodes(policy, episodes, EPISODE_SEED, env=env, action_std=scale)
 
 
 def label(std: float | None) -> str:

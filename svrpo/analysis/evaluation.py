@@ -142,11 +142,15 @@ OnStep = Callable[[gym.Env, int], None]
 
 
 def run_episodes(policy: LoadedPolicy, episodes: int, seed: int, env: gym.Env | None = None,
-                 on_step: OnStep | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 on_step: OnStep | None = None,
+                 action_std: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(returns, lengths) of `episodes` mean-action episodes, episode k reset with seed + k.
 
     `env` defaults to the training env (svrpo.sampling.envs.make_env); `on_step(env, step)` is called after
-    each reset (step 0) and each env step (for rendering).
+    each reset (step 0) and each env step (for rendering). With `action_std` ((act_dim,), in the
+    policy's [-1, 1] units) the actions are sampled as in training, mean + action_std * z, with z
+    drawn in episode k from np.random.default_rng([seed, k]): the same start states and the same
+    draws for every `action_std`, so episodes at different noise levels are paired.
     """
     config = policy.config
     env = env if env is not None else make_env(config.env_id, config.max_episode_steps)
@@ -158,11 +162,14 @@ def run_episodes(policy: LoadedPolicy, episodes: int, seed: int, env: gym.Env | 
     try:
         for episode in range(episodes):
             observation = env.reset(seed=seed + episode)[0]
+            noise = None if action_std is None else np.random.default_rng([seed, episode])
             done, step = False, 0
             if on_step is not None:
                 on_step(env, 0)
             while not done:
                 action = policy.snapshot.mean_action(np.asarray(observation, dtype=np.float64)[None])[0]
+                if noise is not None:
+                    action = action + action_std * noise.standard_normal(action.shape)
                 observation, reward, terminated, truncated, _ = env.step(scale_action(action, low, high))
                 returns[episode] += float(reward)
                 step += 1
