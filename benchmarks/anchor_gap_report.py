@@ -63,18 +63,21 @@ MATCH_TOLERANCE = 0.25
 """Section 11: each measure's mean within 25% of sb3-contrib's (and no Welch p < 0.05) to match."""
 
 
-def action_std_late(run_dir: Path) -> float:
+def action_std_late(rows: Sequence[dict[str, float]]) -> float:
     """Mean progress.csv action_std over the iterations ending in the last STD_WINDOW steps."""
-    rows = read_progress(run_dir / "progress.csv")
     end = rows[-1]["env_steps"]
-    values = [row["action_std"] for row in rows if row["env_steps"] > end - STD_WINDOW]
-    return statistics.fmean(values)
+    return statistics.fmean(row["action_std"] for row in rows if row["env_steps"] > end - STD_WINDOW)
 
 
 def stds(runs: Path, experiment: str, env: str) -> list[float]:
-    return [action_std_late(seed_dir) for seed_dir in sorted((runs / experiment / env / "trpo").glob("seed*"))
-            if (seed_dir / "progress.csv").is_file()
-            and read_progress(seed_dir / "progress.csv")[-1]["env_steps"] >= RUN_STEPS]
+    """action_std_late of each finished trpo seed of EXPERIMENT/ENV (each progress.csv read once)."""
+    out = []
+    for seed_dir in sorted((runs / experiment / env / "trpo").glob("seed*")):
+        path = seed_dir / "progress.csv"
+        rows = read_progress(path) if path.is_file() else []
+        if rows and rows[-1]["env_steps"] >= RUN_STEPS:
+            out.append(action_std_late(rows))
+    return out
 
 
 def mean_of(runs: Sequence[anchor_table.Run], key: str) -> float:
@@ -153,9 +156,10 @@ def render(runs: Path, reports: Sequence[dict[str, Any]]) -> str:
                                   ("our `trpo` (figure1-modern)", ours, committed_std),
                                   (f"`{step.experiment}`", variant, stds(runs, step.experiment, step.env))):
             cells = [anchor_table.interval_text([getattr(r, key) for r in group]) for key, _ in MEASURES]
-            std_text = "not recorded" if std is None else (
-                f"{statistics.fmean(std):.3f} [{t_interval(std)[0]:.3f}, {t_interval(std)[1]:.3f}]"
-                if len(std) > 1 else "not recorded")
+            std_text = "not recorded"
+            if std is not None and len(std) > 1:
+                low, high = t_interval(std)
+                std_text = f"{statistics.fmean(std):.3f} [{low:.3f}, {high:.3f}]"
             lines.append(f"| {label} | {len(group)} | {' | '.join(cells)} | {std_text} |")
         lines += ["", "| variant against | " + " | ".join(name for _, name in anchor_table.MEASURES)
                   + " | verdict |", "|---|---|---|---|---|"]

@@ -42,7 +42,7 @@ from svrpo.config import make_preset
 from svrpo.core.objectives import SurrogateBatch
 from svrpo.core.parts import update_parts
 from svrpo.core.update import update_policy
-from svrpo.models.parameters import flat_parameters
+from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
 
 THRESHOLD = 1e-3
@@ -110,8 +110,6 @@ def kl_both_ways(batch: SurrogateBatch, policy: GaussianMlpPolicy) -> tuple[floa
 
 def policy_at(template: GaussianMlpPolicy, flat: torch.Tensor) -> GaussianMlpPolicy:
     """A copy of `template` with parameters `flat`."""
-    from svrpo.models.parameters import set_flat_parameters
-
     widths = tuple(int(m.out_features) for m in template.mean_net if isinstance(m, nn.Linear))
     copy = GaussianMlpPolicy(template.obs_dim, template.act_dim, widths[:-1])
     set_flat_parameters(copy, flat)
@@ -161,7 +159,7 @@ def main(argv: list[str] | None = None) -> None:
             relative = float((d_ours - d_sb3).norm()) / norm_sb3 if norm_sb3 > 0 else math.nan
             cosine = float(torch.dot(d_ours, d_sb3) / (d_ours.norm() * d_sb3.norm())) \
                 if norm_sb3 > 0 and float(d_ours.norm()) > 0 else math.nan
-            sb3_policy = policy_at(ours, sb3_after)
+            kl_ours, kl_sb3 = kl_both_ways(batch, ours), kl_both_ways(batch, policy_at(ours, sb3_after))
             record = {
                 "update": len(records) + 1, "env_steps": int(self.num_timesteps),
                 "relative_difference": relative, "cosine": cosine,
@@ -169,10 +167,8 @@ def main(argv: list[str] | None = None) -> None:
                 "log_std_step_ours": float(d_ours[:act_dim].mean()),
                 "log_std_step_sb3": float(d_sb3[:act_dim].mean()),
                 "action_std_before": float(before[:act_dim].exp().mean()),
-                "kl_old_new_ours": kl_both_ways(batch, ours)[0],
-                "kl_new_old_ours": kl_both_ways(batch, ours)[1],
-                "kl_old_new_sb3": kl_both_ways(batch, sb3_policy)[0],
-                "kl_new_old_sb3": kl_both_ways(batch, sb3_policy)[1],
+                "kl_old_new_ours": kl_ours[0], "kl_new_old_ours": kl_ours[1],
+                "kl_old_new_sb3": kl_sb3[0], "kl_new_old_sb3": kl_sb3[1],
                 "ours_backtracks": stats.backtracks, "ours_accepted": stats.inner_steps_accepted,
                 "log_prob_copy_gap": log_prob_gap,
             }
