@@ -1,0 +1,243 @@
+"""The paper-scale Swimmer experiment (issue 24), read by its protocol's rules.
+
+    python benchmarks/paper_swimmer_report.py [--runs results/runs]
+        [--out results/figure1-paper-swimmer/report.md]
+
+results/figure1-paper-swimmer/PROTOCOL.md: section 5 names the statistics, section 8 the two
+tests of the paper's Swimmer claim, and section 1 asks whether the answer differs from the laptop
+scale (N = 5,000). This script computes both tests at both scales from the run directories, by
+the same code as the figure1 tables (svrpo.experiments.table.summarize):
+
+* "<= 40% of TRPO's samples": svrpo's samples to reach TRPO's final mean return, as a
+  percentage of TRPO's steps, is at most 40 ("not reached" fails it);
+* "ends much higher": Welch's two-sided test of svrpo's per-seed final returns (mean training
+  return over the last 10% of iterations) against trpo's has p < 0.05 with svrpo's mean above.
+
+The claim holds at a scale when both hold. Only whole seeds count (section 3): a seed is read
+when every preset's run of it has finished its steps, so an unfinished experiment reports its
+complete seeds of all three presets and says how many. Beside the tests (section 5): the final
+deterministic evaluation, CPU seconds, the variance probe and the accepted inner steps per
+iteration (benchmarks/accepted_steps.py's means), which say why the scales differ, if they do.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import accepted_steps  # noqa: E402
+
+from svrpo.analysis.plotting import RunCurve, load_curve  # noqa: E402
+from svrpo.experiments.table import TableRow, final_text, reach_text, smoothed_seeds, summarize  # noqa: E402
+from svrpo.rundir.logging import read_progress  # noqa: E402
+
+TASK = "Swimmer-v5"
+PRESETS = ("svrpo", "svrpo-loglik", "trpo")
+SCALES = (("paper (N = 50,000)", "figure1-paper"), ("laptop (N = 5,000)", "figure1-laptop"))
+PLANNED_SEEDS = {"figure1-paper": 5}
+"""Section 3: seeds 0-4 at the paper scale (the laptop runs are finished)."""
+HEADLINE_PERCENT = 40.0
+ALPHA = 0.05
+
+
+@dataclass(frozen=True)
+class Welch:
+    """Welch's two-sided test of mean(a) - mean(b) and its 95% interval."""
+
+    difference: float
+    low: float
+    high: float
+    p_value: float
+
+
+def welch(a: Sequence[float], b: Sequence[float]) -> Welch | None:
+    """None with fewer than two seeds a side (one seed is no evidence either way)."""
+    if len(a) < 2 or len(b) < 2:
+        return None
+    first, second = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    result = stats.ttest_ind(first, second, equal_var=False)
+    interval = result.confidence_interval(0.95)
+    return Welch(float(first.mean() - second.mean()), float(interval.low), float(interval.high),
+                 float(result.pvalue))
+
+
+@dataclass(frozen=True)
+class Claim:
+    """Section 8's two tests at one scale."""
+
+    percent_of_trpo_steps: float
+    """svrpo's samples to TRPO's final mean return, % of TRPO's (NaN: not reached)."""
+    test: Welch | None
+    """svrpo's final returns against trpo's."""
+
+    @property
+    def headline(self) -> bool:
+        return math.isfinite(self.percent_of_trpo_steps) and self.percent_of_trpo_steps <= HEADLINE_PERCENT
+
+    @property
+    def ends_higher(self) -> bool:
+        return self.test is not None and self.test.p_value < ALPHA and self.test.difference > 0
+
+    def reading(self) -> str:
+        """The verdict sentence of section 8."""
+        if self.test is None:
+            return "not read (fewer than two complete seeds a preset)"
+        reach = ("not reached" if not math.isfinite(self.percent_of_trpo_steps)
+                 else f"{self.percent_of_trpo_steps:.0f}%")
+        parts = (f"<= 40% of TRPO's samples: {'yes' if self.headline else 'no'} ({reach}); "
+                 f"ends higher (Welch p < 0.05, svrpo above): {'yes' if self.ends_higher else 'no'} "
+                 f"({self.test.difference:+.1f} [{self.test.low:+.1f}, {self.test.high:+.1f}], "
+                 f"p = {self.test.p_value:.3f})")
+        holds = self.headline and self.ends_higher
+        verdict = "**the claim holds**" if holds else "**the claim is not reproduced**"
+        return f"{verdict}: {parts}"
+
+
+def finished(run_dir: Path) -> bool:
+    """Whether the run's progress.csv reaches its config's total_steps."""
+    path = run_dir / "progress.csv"
+    if not path.is_file():
+        return False
+    rows = read_progress(path)
+    total = float(json.loads((run_dir / "config.json").read_text())["total_steps"])
+    return bool(rows) and rows[-1]["env_steps"] >= total
+
+
+def complete_seeds(task_dir: Path, presets: Sequence[str] = PRESETS) -> list[int]:
+    """The seeds k for which every preset's seed<k> run has finished."""
+    per_preset = []
+    for preset in presets:
+        seeds = {int(d.name.removeprefix("seed")) for d in (task_dir / preset).glob("seed*") if finished(d)}
+        per_preset.append(seeds)
+    return sorted(set.intersection(*per_preset)) if per_preset else []
+
+
+def _curves(task_dir: Path, seeds: Sequence[int], metric: str) -> dict[str, list[RunCurve]]:
+    return {preset: [load_curve(task_dir / preset / f"seed{seed}", metric) for seed in seeds]
+            for preset in PRESETS}
+
+
+def _cpu(task_dir: Path, seeds: Sequence[int]) -> dict[str, list[RunCurve]]:
+    """CPU seconds per iteration (cpu_learner + cpu_workers), as the figure1 report reads them."""
+    out: dict[str, list[RunCurve]] = {}
+    for preset in PRESETS:
+        out[preset] = []
+        for seed in seeds:
+            run_dir = task_dir / preset / f"seed{seed}"
+            learner, workers = load_curve(run_dir, "cpu_learner"), load_curve(run_dir, "cpu_workers")
+            out[preset].append(dataclasses.replace(
+                learner, values=learner.values.astype(np.float64) + workers.values.astype(np.float64)))
+    return out
+
+
+@dataclass(frozen=True)
+class Scale:
+    """One scale's numbers."""
+
+    label: str
+    experiment: str
+    seeds: list[int]
+    rows: list[TableRow]
+    finals: dict[str, list[float]]
+    """Per preset, each seed's final return (the table's per-seed s(T))."""
+    steps: dict[str, dict[str, float]]
+    """Per svrpo preset, accepted_steps.summarize over its seeds."""
+
+    def claim(self) -> Claim:
+        svrpo = next(row for row in self.rows if row.preset == "svrpo")
+        return Claim(svrpo.percent_of_trpo_steps, welch(self.finals["svrpo"], self.finals["trpo"]))
+
+
+def read_scale(runs: Path, label: str, experiment: str) -> Scale | None:
+    """None when the experiment has no complete seed."""
+    task_dir = runs / experiment / TASK
+    seeds = complete_seeds(task_dir)
+    if not seeds:
+        return None
+    returns = _curves(task_dir, seeds, "average_return")
+    rows = summarize({TASK: returns}, {TASK: _curves(task_dir, seeds, "variance_ratio")},
+                     {TASK: _curves(task_dir, seeds, "eval_return")},
+                     {TASK: _curves(task_dir, seeds, "wall_time")}, {TASK: _cpu(task_dir, seeds)})
+    finals = {preset: [float(v) for v in smoothed_seeds(curves)[1][:, -1]]
+              for preset, curves in returns.items()}
+    steps = {preset: accepted_steps.summarize(
+        [read_progress(task_dir / preset / f"seed{seed}" / "progress.csv") for seed in seeds])
+        for preset in PRESETS if preset != "trpo"}
+    return Scale(label, experiment, seeds, rows, finals, steps)
+
+
+def _cell(value: float, digits: int = 0) -> str:
+    return "" if not math.isfinite(value) else f"{value:,.{digits}f}"
+
+
+def render(scales: Sequence[Scale]) -> list[str]:
+    lines = ["# The paper's Swimmer claim at the paper's own scale (issue 24)", "",
+             "`python benchmarks/paper_swimmer_report.py` (its docstring says what is computed; the rules "
+             "are results/figure1-paper-swimmer/PROTOCOL.md section 8, fixed before the runs).", ""]
+    for scale in scales:
+        planned = PLANNED_SEEDS.get(scale.experiment)
+        note = "" if planned is None or len(scale.seeds) >= planned else (
+            f" ({len(scale.seeds)} of the {planned} planned seeds complete: an interim reading)")
+        seeds = ", ".join(map(str, scale.seeds))
+        lines.append(f"- {scale.label}, seeds {seeds}{note}: {scale.claim().reading()}")
+    lines += ["", "| scale | preset | n | final return (95% CI) | final deterministic eval (95% CI) | "
+              "samples to TRPO's final return | CPU time to it | CPU s per run | median variance ratio | "
+              "accepted inner steps per iteration | mean KL after the inner loop |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for scale in scales:
+        for row in scale.rows:
+            steps = scale.steps.get(row.preset)
+            evaluation = (f"{row.final_eval_return:.1f} [{row.final_eval_low:.1f}, {row.final_eval_high:.1f}]"
+                          if math.isfinite(row.final_eval_low) else _cell(row.final_eval_return, 1))
+            cpu_reach = ("not reached" if not math.isfinite(row.percent_of_trpo_cpu)
+                         else f"{row.percent_of_trpo_cpu:.0f}%")
+            accepted = "1 (J = 1)" if steps is None else f"{steps['accepted']:.2f}"
+            kl = "" if steps is None else f"{steps['mean_kl']:.4f}"
+            lines.append(
+                f"| {scale.label} | {row.preset} | {row.seeds} | {final_text(row)} | {evaluation} "
+                f"| {reach_text(row)} | {cpu_reach} | {_cell(row.cpu_seconds_per_run)} "
+                f"| {_cell(row.median_variance_ratio, 3)} | {accepted} | {kl} |")
+    lines += ["", "Welch's test of each svrpo preset's final returns against trpo's (difference of means "
+              "[95% CI], p):", "", "| scale | svrpo - trpo | svrpo-loglik - trpo |", "|---|---|---|"]
+    for scale in scales:
+        cells = []
+        for preset in ("svrpo", "svrpo-loglik"):
+            test = welch(scale.finals[preset], scale.finals["trpo"])
+            cells.append("not tested" if test is None else f"{test.difference:+.1f} [{test.low:+.1f}, "
+                         f"{test.high:+.1f}], p = {test.p_value:.3f}")
+        lines.append(f"| {scale.label} | {' | '.join(cells)} |")
+    lines += ["", "Per-seed final returns (mean training return over the last 10% of iterations):", ""]
+    for scale in scales:
+        for preset in PRESETS:
+            values = ", ".join(f"{value:.1f}" for value in scale.finals[preset])
+            lines.append(f"- {scale.label}, {preset}: {values}")
+    return [*lines, ""]
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=Path, default=Path("results/runs"))
+    parser.add_argument("--out", type=Path, default=Path("results/figure1-paper-swimmer/report.md"))
+    args = parser.parse_args(argv)
+    scales = [scale for label, experiment in SCALES if (scale := read_scale(args.runs, label, experiment))]
+    if not scales:
+        raise SystemExit(f"no complete seed of {TASK} under {args.runs}/figure1-paper or figure1-laptop")
+    text = "\n".join(render(scales))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
