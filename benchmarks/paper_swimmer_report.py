@@ -200,13 +200,15 @@ def render(scales: Sequence[Scale]) -> list[str]:
             steps = scale.steps.get(row.preset)
             evaluation = (f"{row.final_eval_return:.1f} [{row.final_eval_low:.1f}, {row.final_eval_high:.1f}]"
                           if math.isfinite(row.final_eval_low) else _cell(row.final_eval_return, 1))
-            cpu_reach = ("not reached" if not math.isfinite(row.percent_of_trpo_cpu)
-                         else f"{row.percent_of_trpo_cpu:.0f}%")
+            recorded = math.isfinite(row.cpu_seconds_per_run)  # runs older than the CPU columns
+            cpu_reach = ("not recorded" if not recorded else "not reached"
+                         if not math.isfinite(row.percent_of_trpo_cpu) else f"{row.percent_of_trpo_cpu:.0f}%")
+            cpu_run = _cell(row.cpu_seconds_per_run) if recorded else cpu_reach
             accepted = "1 (J = 1)" if steps is None else f"{steps['accepted']:.2f}"
             kl = "" if steps is None else f"{steps['mean_kl']:.4f}"
             lines.append(
                 f"| {scale.label} | {row.preset} | {row.seeds} | {final_text(row)} | {evaluation} "
-                f"| {reach_text(row)} | {cpu_reach} | {_cell(row.cpu_seconds_per_run)} "
+                f"| {reach_text(row)} | {cpu_reach} | {cpu_run} "
                 f"| {_cell(row.median_variance_ratio, 3)} | {accepted} | {kl} |")
     lines += ["", "Welch's test of each svrpo preset's final returns against trpo's (difference of means "
               "[95% CI], p):", "", "| scale | svrpo - trpo | svrpo-loglik - trpo |", "|---|---|---|"]

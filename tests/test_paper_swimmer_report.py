@@ -22,7 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 STEPS, ITERATIONS = 100, 10
 
 
-def write_run(root: Path, preset: str, seed: int, returns: list[float], *, accepted: float = 1.0) -> Path:
+def write_run(root: Path, preset: str, seed: int, returns: list[float], *, accepted: float = 1.0,
+              cpu: bool = True) -> Path:
     """A run directory as a figure1 sweep writes it, with the columns the report reads."""
     run_dir = root / "figure1-paper" / "Swimmer-v5" / preset / f"seed{seed}"
     run_dir.mkdir(parents=True)
@@ -36,7 +37,8 @@ def write_run(root: Path, preset: str, seed: int, returns: list[float], *, accep
                          "variance_ratio", "cpu_learner", "cpu_workers", "inner_steps_accepted", "mean_kl"])
         for i, value in enumerate(returns):
             writer.writerow([i, STEPS * (i + 1), 2.0 * (i + 1), value, value + 1.0,
-                             "" if preset == "trpo" else 0.5, 1.0, 2.0, accepted, 0.01])
+                             "" if preset == "trpo" else 0.5, 1.0 if cpu else "", 2.0 if cpu else "",
+                             accepted, 0.01])
     return run_dir
 
 
@@ -129,3 +131,13 @@ def test_the_script_writes_the_report_as_a_user_runs_it(runs: Path, tmp_path: Pa
     empty = subprocess.run([sys.executable, script, "--runs", str(tmp_path / "none"), "--out", str(out)],
                            capture_output=True, text=True)
     assert empty.returncode != 0 and "no complete seed" in empty.stderr
+
+
+def test_runs_without_cpu_columns_read_not_recorded_not_not_reached(tmp_path: Path) -> None:
+    for seed in range(2):
+        write_run(tmp_path, "trpo", seed, trpo_returns(seed), cpu=False)
+        write_run(tmp_path, "svrpo", seed, svrpo_returns(seed), cpu=False)
+        write_run(tmp_path, "svrpo-loglik", seed, trpo_returns(seed), cpu=False)
+    text = "\n".join(report.render([report.read_scale(tmp_path, "old", "figure1-paper")]))
+    assert ("| old | svrpo | 2 | 150.5 [144.1, 156.9] | 151.5 [145.1, 157.9] | 40% (400 steps) "
+            "| not recorded | not recorded | 0.500 | 1.00 | 0.0100 |") in text
