@@ -84,6 +84,24 @@ def test_screening_runs_seeds_0_to_2_of_every_configuration(tmp_path: Path, expe
         assert seeds[-1] == (0, 1, 2)  # each pass adds one seed; the finished ones are skipped
 
 
+def test_fresh_screening_streams_run_their_specs_with_their_jobs(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two streams of four configurations (PROTOCOL.md 2026-12-04): each runs only its specs, in
+    the given order, seed-major, with JOBS runs at a time; together they cover the whole grid."""
+    script = ROOT / "results" / "fresh-samples" / "run_screening.sh"
+    first = ["svrpg-b256", "srvrpg-b256", "stormpg-b256", "svrpg-sgd-b256"]
+    monkeypatch.setenv("JOBS", "1")
+    calls = _calls(script, tmp_path, "root-a", *first)
+    assert [Path(call[1]).stem for call in calls] == first * 3
+    assert [_planned_seeds(call)[-1] for call in calls] == [0] * 4 + [1] * 4 + [2] * 4
+    assert {_value(call, "--jobs") for call in calls} == {"1"}
+    assert {_value(call, "--root") for call in calls} == {"root-a"}
+    monkeypatch.delenv("JOBS")
+    every = _calls(script, tmp_path, "root")
+    assert {_value(call, "--jobs") for call in every} == {"2"}
+    assert {Path(call[1]).stem for call in every} > set(first)
+
+
 def test_paper_swimmer_runs_five_seeds(tmp_path: Path) -> None:
     calls = _calls(ROOT / "results" / "figure1-paper-swimmer" / "run.sh", tmp_path, "root")
     assert [_planned_seeds(call) for call in calls] == [tuple(range(n)) for n in range(1, 6)]
