@@ -141,3 +141,43 @@ def test_runs_without_cpu_columns_read_not_recorded_not_not_reached(tmp_path: Pa
     text = "\n".join(report.render([report.read_scale(tmp_path, "old", "figure1-paper")]))
     assert ("| old | svrpo | 2 | 150.5 [144.1, 156.9] | 151.5 [145.1, 157.9] | 40% (400 steps) "
             "| not recorded | not recorded | 0.500 | 1.00 | 0.0100 |") in text
+
+
+def test_own_reach_is_the_share_of_steps_to_each_fraction_of_trpos_final() -> None:
+    steps = np.arange(1, 11, dtype=np.float64) * 100.0
+    climbing = np.tile(np.arange(1, 11, dtype=np.float64) * 10.0, (2, 1))  # final 100, linear
+    assert report.own_reach(steps, climbing) == pytest.approx({0.90: 90.0, 0.95: 100.0, 0.99: 100.0})
+    flat = np.array([[50.0, 96.0, 100.0, 100.0, 100.0, 100.0, 100.0, 100.0, 100.0, 100.0]] * 2)
+    assert report.own_reach(steps, flat) == pytest.approx({0.90: 20.0, 0.95: 20.0, 0.99: 30.0})
+    seeds_apart = np.array([[100.0] * 10, [0.0] * 9 + [100.0]])  # the mean's 90% (90) at the end only
+    assert report.own_reach(steps, seeds_apart)[0.90] == pytest.approx(100.0)
+
+
+def test_headline_resampled_counts_resamples_whose_mean_reaches_within_40_percent() -> None:
+    steps = np.arange(1, 11, dtype=np.float64) * 100.0
+    trpo = np.tile(np.arange(1, 11, dtype=np.float64) * 10.0, (3, 1))  # final 100 in every resample
+    fast = np.array([[0.0] + [300.0] * 9])  # reaches 100 at 20% of the steps
+    slow = np.array([[0.0] * 10])
+    assert report.headline_resampled(steps, np.vstack([fast, fast]), trpo, resamples=200) == 1.0
+    assert report.headline_resampled(steps, np.vstack([slow, slow]), trpo, resamples=200) == 0.0
+    # Two seeds: the headline fails only when both draws are the slow seed (probability 1/4);
+    # one fast draw lifts the mean to 150 from 20% of the steps on.
+    share = report.headline_resampled(steps, np.vstack([fast, slow]), trpo, resamples=4000)
+    assert share == pytest.approx(0.75, abs=0.03)
+    at_40 = np.array([[0.0] * 3 + [300.0] * 7])  # reaches at exactly 40%: the rule is inclusive
+    assert report.headline_resampled(steps, np.vstack([at_40, at_40]), trpo, resamples=50) == 1.0
+    late = np.array([[0.0] * 4 + [300.0] * 6])  # reaches at 50%: never within 40%
+    assert report.headline_resampled(steps, np.vstack([late, late]), trpo, resamples=50) == 0.0
+
+
+def test_the_report_has_the_explanatory_part_per_scale_and_seed(runs: Path, tmp_path: Path) -> None:
+    out = tmp_path / "report.md"
+    subprocess.run([sys.executable, str(ROOT / "benchmarks" / "paper_swimmer_report.py"), "--runs", str(runs),
+                    "--out", str(out)], check=True, capture_output=True, timeout=120)
+    text = out.read_text()
+    explanatory = text[text.index("## Explanatory"):]
+    # trpo_returns: smoothed over a window of 1 (10 iterations), seed-mean final 101, 90% of it
+    # (90.9) first reached at iteration 9 (91): 90% of the steps.
+    assert "| paper (N = 50,000) | 90% / 100% / 100% of its steps |" in explanatory
+    # svrpo_returns seed 0 (30, 60, 90, 120, ...) reaches trpo's final mean 101 at iteration 4.
+    assert "- paper (N = 50,000), svrpo: 40%, 40%, 40%" in explanatory
