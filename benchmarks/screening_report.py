@@ -135,9 +135,13 @@ Groups = dict[str, dict[str, list[Path]]]
 
 
 def spec_groups(screening: Screening, runs: Path, names: Sequence[str] | None = None) -> Groups:
-    """The configurations' run directories under RUNS, from their specs."""
-    return {name: run_dirs(load_spec(str(spec_path(screening, name))), runs)
-            for name in (names or screening.configs)}
+    """The configurations' run directories under RUNS, from their specs; by default every
+    configuration of the screening and its reference (first when it is not one of them: the
+    fresh-samples screening normalises by the budgeted-trust-region screening's TRPO)."""
+    if names is None:
+        names = screening.configs if screening.reference in screening.configs else (
+            screening.reference, *screening.configs)
+    return {name: run_dirs(load_spec(str(spec_path(screening, name))), runs) for name in names}
 
 
 def curves(groups: Groups, reference: str, metric: str) -> Curves:

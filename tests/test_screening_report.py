@@ -96,6 +96,32 @@ def test_report_applies_the_rule_and_matches_trpo_to_the_kl_moved(tmp_path: Path
     assert "| Hopper-v5 | vr-a | 3 | 151.0 [148.5, 153.5] | 151.0 [148.5, 153.5] |" in "\n".join(lines)
 
 
+def test_report_reads_a_reference_that_is_not_one_of_its_configurations(tmp_path: Path) -> None:
+    """The fresh-samples shape: the reference (another experiment's TRPO) is not among the
+    configurations; the report still normalises by it, shows it first, and decides among the
+    candidates as before. The reference's runs count for completeness too."""
+    script, screening, runs = _screening(tmp_path)
+    screening = script.Screening("test", ("vr-a", "vr-b", "sgd"), "ref", screening.reference_spec,
+                                 screening.candidates, screening.twins, False, screening.spec_dir)
+    lines, summary = script.report(screening, runs, resamples=200)
+    assert list(summary["per_task"]["Hopper-v5"]) == ["ref", "vr-a", "vr-b", "sgd"]
+    assert summary["decision"]["chosen"] == "vr-a"
+    assert summary["decision"]["candidate_iqm"]["vr-a"] == pytest.approx(151 / 101)
+    (runs / "s-ref-modern" / "Hopper-v5" / "trpo" / "seed1" / "checkpoints" / "iter_000010.pt").unlink()
+    with pytest.raises(ValueError, match="1 runs have not finished"):
+        script.report(screening, runs, resamples=50)
+
+
+def test_the_committed_screenings_read_their_reference(tmp_path: Path) -> None:
+    """Both protocols normalise by trpo-d0.01 of the budgeted-trust-region screening: it is among
+    the run groups each report reads."""
+    script = _script()
+    for screening in script.SCREENINGS.values():
+        groups = script.spec_groups(screening, tmp_path)
+        assert screening.reference in groups and set(screening.configs) <= set(groups)
+        assert "Hopper-v5" in groups[screening.reference]
+
+
 def test_report_refuses_an_incomplete_screening(tmp_path: Path) -> None:
     script, screening, runs = _screening(tmp_path, finish_all=False)
     with pytest.raises(ValueError, match="2 runs have not finished"):
