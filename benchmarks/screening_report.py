@@ -409,7 +409,7 @@ def confirmation_report(screening: Screening, runs: Path, resamples: int = 2000
         verdict = "no effect: the interval contains 0.5" if entry["no_effect"] else (
             f"{x} ahead" if estimate.value > 0.5 else f"{y} ahead")
         lines.append(f"| {question} P({x} > {y}) | {_entry(entry)} | {verdict} |")
-    if screening.experiment == "fresh-samples" and not any("same batch" in y for _, y, _ in comparisons):
+    if not screening.matched_kl and not any("same batch" in y for _, y, _ in comparisons):
         lines += ["", "The budgeted-trust-region confirmation has not finished: the comparison with the "
                   "best same-batch configuration is missing."]
     lines.append("")

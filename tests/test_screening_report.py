@@ -216,3 +216,63 @@ def test_no_effect_is_an_interval_containing_one_half() -> None:
     no_effect = _script().no_effect
     assert no_effect({"ci": [0.4, 0.6]}) and no_effect({"ci": [0.5, 0.9]})
     assert not no_effect({"ci": [0.51, 0.9]}) and not no_effect({"ci": [0.1, 0.49]})
+
+
+def test_fresh_confirmation_report_adds_the_same_batch_choice_once_it_has_finished(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The fresh-samples shape (no matched TRPO): normalised by the committed TRPO; the questions
+    are P(chosen > committed TRPO) and P(chosen > twin), and P(chosen > the budgeted-trust-region
+    confirmation's choice) only once every run of that choice has finished. vr-a ends at 150 + s,
+    sgd at 120 + s, the same-batch choice at 130 + s, the committed TRPO at 100 + s."""
+    from svrpo.experiments import specs
+
+    script, screening, runs = _screening(tmp_path)
+    screening = script.Screening("fresh-test", screening.configs, screening.reference,
+                                 screening.reference_spec, screening.candidates, screening.twins,
+                                 False, screening.spec_dir)
+    results = tmp_path / "results"
+    monkeypatch.setattr(script, "RESULTS", results)
+    monkeypatch.setattr(script, "CONFIRMATION_SEEDS", [100, 101, 102])
+    monkeypatch.setattr(specs, "PAPER_TASKS", ("Hopper-v5", "Walker2d-v5"))
+    decision = {"chosen": "vr-a", "twin": "sgd"}
+    (results / "fresh-test").mkdir(parents=True)
+    (results / "fresh-test" / "screening.json").write_text(json.dumps({"decision": decision}))
+    paths = script.write_confirmation(screening, decision, results / "fresh-test" / "confirmation")
+    assert sorted(p.stem for p in paths) == ["sgd", "vr-a"]  # no TRPO is re-run
+    bt_confirmation = results / "budgeted-trust-region" / "confirmation"
+    bt_confirmation.mkdir(parents=True)
+    (results / "budgeted-trust-region" / "screening.json").write_text(
+        json.dumps({"decision": {"chosen": "same", "twin": "x", "matched_trpo_max_kl": 0.02}}))
+    (bt_confirmation / "same.yaml").write_text(
+        "name: bt-confirm-same\ntasks: [Hopper-v5, Walker2d-v5]\npresets: [svrpo-budgeted]\n"
+        "seeds: [100, 101, 102]\nscale: modern\n")
+    finals = {("s-vr-a", "svrpo-budgeted"): 150.0, ("s-sgd", "svrpo-budgeted"): 120.0,
+              ("bt-confirm-same", "svrpo-budgeted"): 130.0}
+    for (experiment, preset), final in finals.items():
+        for task in ("Hopper-v5", "Walker2d-v5"):
+            for seed in (100, 101, 102):
+                unfinished_one = experiment == "bt-confirm-same" and seed == 102 and task == "Hopper-v5"
+                _write_run(runs / f"{experiment}-modern" / task / preset / f"seed{seed}", task, preset,
+                           experiment, seed, [0.0] + [final + seed] * 9, [0.01] * 10,
+                           finished=not unfinished_one)
+    for task in ("Hopper-v5", "Walker2d-v5"):
+        for seed in range(5):
+            _write_run(runs / "figure1-modern" / task / "trpo" / f"seed{seed}", task, "trpo", "figure1",
+                       seed, [0.0] + [100.0 + seed] * 9, [0.005] * 10)
+    lines, summary = script.confirmation_report(screening, runs, resamples=200)
+    assert summary["reference"] == script.COMMITTED_TRPO
+    pairs = [(a["x"], a["y"]) for a in summary["answers"]]
+    assert pairs == [("vr-a", script.COMMITTED_TRPO), ("vr-a", "sgd")]
+    assert all(a["value"] == 1.0 and not a["no_effect"] for a in summary["answers"])
+    assert any("comparison with the best same-batch configuration is missing" in line for line in lines)
+    assert len(summary["per_task"]["Hopper-v5"][script.COMMITTED_TRPO]["final_return"]) == 5
+    (runs / "bt-confirm-same-modern" / "Hopper-v5" / "svrpo-budgeted" / "seed102" / "checkpoints"
+     / "iter_000010.pt").write_bytes(b"")
+    lines, summary = script.confirmation_report(screening, runs, resamples=200)
+    answers = [(a["x"], a["y"], a["value"]) for a in summary["answers"]]
+    assert answers == [("vr-a", script.COMMITTED_TRPO, 1.0), ("vr-a", "same (same batch)", 1.0),
+                       ("vr-a", "sgd", 1.0)]
+    assert not any("is missing" in line for line in lines)
+    # the same-batch configuration's per-task finals are its own runs (130 + seed)
+    same_batch = summary["per_task"]["Walker2d-v5"]["same (same batch)"]
+    assert same_batch["final_return"] == pytest.approx([230, 231, 232])
