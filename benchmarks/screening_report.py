@@ -6,7 +6,8 @@ mechanically (results/budgeted-trust-region/PROTOCOL.md, results/fresh-samples/P
     ... --write-confirmation     # also the confirmation's specs, from the decision
     ... --confirmation           # the confirmation's report, once its runs have finished
 
-Writes results/<experiment>/screening.md and screening.json. Every configuration is one YAML
+Writes results/<experiment>/screening.md, screening.json and screening.png (learning curves
+against environment steps, descriptive). Every configuration is one YAML
 spec of the protocol's screening/ folder (its runs under RUNS/<name>-<scale>/); the report refuses
 to read numbers until every run of every configuration has finished (the protocols decide only
 on the complete screening).
@@ -46,7 +47,7 @@ from svrpo.experiments.aggregate import (  # noqa: E402
     window_scores,
 )
 from svrpo.experiments.specs import ExperimentSpec, load_spec  # noqa: E402
-from svrpo.experiments.table import t_interval  # noqa: E402
+from svrpo.experiments.table import FINAL_FRACTION, t_interval  # noqa: E402
 from svrpo.rundir import checkpoint  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
@@ -154,6 +155,19 @@ def curves(groups: Groups, reference: str, metric: str) -> Curves:
     return out
 
 
+def write_figure(groups: Groups, out: Path, title: str, smoothing: int = 10) -> Path:
+    """The learning curves of `groups` against environment steps: one panel per task, one line
+    per configuration (mean over seeds with a 95% bootstrap band, trailing mean over `smoothing`
+    iterations) -> PNG. Descriptive only: no protocol rule reads it."""
+    from svrpo.analysis.plotting import plot_panels
+
+    by_task: dict[str, dict[str, list[RunCurve]]] = {}
+    for name, by_dir in groups.items():
+        for task, dirs in by_dir.items():
+            by_task.setdefault(task, {})[name] = [load_curve(d, "average_return") for d in dirs]
+    return plot_panels(by_task, out, "average return (training)", smoothing, title=title)
+
+
 def run_medians(runs: Sequence[RunCurve]) -> np.ndarray:
     """Each run's median over its iterations of the curve's finite values."""
     return np.array([float(np.median(r.values[np.isfinite(r.values)])) if np.isfinite(r.values).any()
@@ -251,6 +265,61 @@ def compare(groups: Groups, reference: str, resamples: int = 2000
     return lines, {"per_task": per_task, "aggregate": summary}, finals_by, kl
 
 
+def equal_steps_scores(runs: Sequence[RunCurve], budget: float) -> np.ndarray:
+    """Each run's mean training return over its iterations whose env_steps lie in
+    ((1 - FINAL_FRACTION) budget, budget]: the final window, measured in samples (NaN where a
+    run has no finite return there)."""
+    scores = []
+    for run in runs:
+        steps = run.env_steps.astype(np.float64)
+        inside = (steps > (1 - FINAL_FRACTION) * budget) & (steps <= budget) & np.isfinite(run.values)
+        scores.append(float(np.mean(run.values[inside])) if inside.any() else math.nan)
+    return np.array(scores)
+
+
+def _finite(values: np.ndarray) -> np.ndarray:
+    return values[np.isfinite(values)]
+
+
+def equal_steps(groups: Groups, reference: str, pairs: Sequence[tuple[str, str]], resamples: int = 2000
+                ) -> tuple[list[str], dict[str, Any]]:
+    """A descriptive reading at equal environment steps (no protocol rule reads it): a fresh-sample
+    iteration samples only the steps its inner loop ran, so at a fixed number of iterations the
+    configurations have spent different numbers of samples. Per task the budget S is the fewest
+    total env_steps of any run of any configuration; every run is scored by equal_steps_scores at
+    S; P(X > Y) for each of `pairs`, stratified over tasks as the protocol's. (markdown lines,
+    {"budget": {task: S}, "per_task": {task: {configuration: scores}}, "pairs": [...]})."""
+    returns = curves(groups, reference, "average_return")
+
+    def shown(key: str) -> str:
+        return reference if key == REFERENCE else key
+
+    budgets = {task: float(min(r.env_steps[-1] for runs in by_config.values() for r in runs))
+               for task, by_config in returns.items()}
+    scores = {task: {shown(key): equal_steps_scores(runs, budgets[task]) for key, runs in by_config.items()}
+              for task, by_config in returns.items()}
+    lines = ["## At equal environment steps (descriptive; decides nothing)", "",
+             "The mean training return over the iterations between 90% and 100% of S, per task S = the "
+             "fewest environment steps any run of the task sampled (fresh-sample iterations sample only "
+             "the steps their inner loops ran, so at equal iterations the configurations differ in samples):",
+             "", "| task | S (steps) | configuration | n | return at S [95% CI] |", "|---|---|---|---|---|"]
+    for task, by_config in scores.items():
+        lines += [f"| {task} | {budgets[task]:,.0f} | {name} | {values.size} | {_ci(values)} |"
+                  for name, values in by_config.items()]
+    lines += ["", "| at equal steps | P(X > Y) [95% CI] |", "|---|---|"]
+    estimates = []
+    for x, y in pairs:
+        estimate = probability_bootstrap([_finite(scores[t][x]) for t in scores],
+                                         [_finite(scores[t][y]) for t in scores], resamples)
+        entry = {"x": x, "y": y, "value": estimate.value, "ci": [estimate.low, estimate.high]}
+        estimates.append(entry)
+        lines.append(f"| P({x} > {y}) | {_entry(entry)} |")
+    lines.append("")
+    per_task = {task: {name: values.tolist() for name, values in by_config.items()}
+                for task, by_config in scores.items()}
+    return lines, {"budget": budgets, "per_task": per_task, "pairs": estimates}
+
+
 def report(screening: Screening, runs: Path, resamples: int = 2000) -> tuple[list[str], dict[str, Any]]:
     """(markdown lines, JSON summary); ValueError if any run has not finished."""
     groups = spec_groups(screening, runs)
@@ -284,7 +353,13 @@ def report(screening: Screening, runs: Path, resamples: int = 2000) -> tuple[lis
         lines += ["", f"Matched TRPO: max_kl = {matched} (the mean over {chosen}'s {kl_runs.size} runs of "
                   f"each run's median mean_kl, {float(np.nanmean(kl_runs)):.5f}, to two significant digits)."]
     lines.append("")
-    return lines, {"per_task": per_task, "aggregate": summary, "twins": twins, "decision": decision}
+    result = {"per_task": per_task, "aggregate": summary, "twins": twins, "decision": decision}
+    if not screening.matched_kl:  # fresh samples: the configurations' sample counts differ
+        pairs = [(c, screening.reference) for c in screening.candidates] + [
+            (c, screening.twins[c]) for c in screening.candidates]
+        extra, result["equal_steps"] = equal_steps(groups, screening.reference, pairs, resamples)
+        lines += extra
+    return lines, result
 
 
 def confirmation_specs(screening: Screening, decision: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
@@ -413,7 +488,12 @@ def confirmation_report(screening: Screening, runs: Path, resamples: int = 2000
         lines += ["", "The budgeted-trust-region confirmation has not finished: the comparison with the "
                   "best same-batch configuration is missing."]
     lines.append("")
-    return lines, {**tables, "answers": answers, "reference": reference}
+    result = {**tables, "answers": answers, "reference": reference}
+    if not screening.matched_kl:  # fresh samples: the configurations' sample counts differ
+        extra, result["equal_steps"] = equal_steps(groups, reference, [(x, y) for x, y, _ in comparisons],
+                                                   resamples)
+        lines += extra
+    return lines, result
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -434,6 +514,8 @@ def main(argv: list[str] | None = None) -> None:
         except ValueError as error:
             raise SystemExit(f"screening_report: {error}") from None
         (out / "confirmation.md").write_text("\n".join(lines))
+        write_figure(confirmation_plan(screening, args.runs)[0], out / "confirmation.png",
+                     f"{screening.experiment}: confirmation")
         (out / "confirmation.json").write_text(json.dumps(summary, indent=2) + "\n")
         print(f"wrote {out / 'confirmation.md'}")
         return
@@ -442,6 +524,8 @@ def main(argv: list[str] | None = None) -> None:
     except ValueError as error:
         raise SystemExit(f"screening_report: {error}") from None
     (out / "screening.md").write_text("\n".join(lines))
+    write_figure(spec_groups(screening, args.runs), out / "screening.png",
+                 f"{screening.experiment}: screening")
     (out / "screening.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(f"wrote {out / 'screening.md'}")
     if args.write_confirmation:

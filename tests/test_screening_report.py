@@ -36,7 +36,7 @@ def test_two_significant_digits() -> None:
 
 
 def _write_run(run_dir: Path, env_id: str, preset: str, experiment: str, seed: int,
-               returns: list[float], kl: list[float], finished: bool = True) -> None:
+               returns: list[float], kl: list[float], finished: bool = True, step: int = 2048) -> None:
     """A run directory as a sweep leaves it: config.json, run.json, progress.csv, and the final
     checkpoint's file when finished (the report only checks that it exists)."""
     iterations = len(returns)
@@ -48,7 +48,7 @@ def _write_run(run_dir: Path, env_id: str, preset: str, experiment: str, seed: i
     rows = ["iteration,env_steps,average_return,eval_return,mean_kl,cpu_learner,cpu_workers"]
     for i, (r, k) in enumerate(zip(returns, kl, strict=True), start=1):
         evaluation = r if i == iterations else ""
-        rows.append(f"{i},{2048 * i},{r},{evaluation},{k},1.0,2.0")
+        rows.append(f"{i},{step * i},{r},{evaluation},{k},1.0,2.0")
     (run_dir / "progress.csv").write_text("\n".join(rows) + "\n")
     (run_dir / "checkpoints").mkdir()
     if finished:
@@ -273,6 +273,57 @@ def test_fresh_confirmation_report_adds_the_same_batch_choice_once_it_has_finish
     assert answers == [("vr-a", script.COMMITTED_TRPO, 1.0), ("vr-a", "same (same batch)", 1.0),
                        ("vr-a", "sgd", 1.0)]
     assert not any("is missing" in line for line in lines)
+    assert [(p["x"], p["y"]) for p in summary["equal_steps"]["pairs"]] == [(x, y) for x, y, _ in answers]
     # the same-batch configuration's per-task finals are its own runs (130 + seed)
     same_batch = summary["per_task"]["Walker2d-v5"]["same (same batch)"]
     assert same_batch["final_return"] == pytest.approx([230, 231, 232])
+
+
+def test_main_writes_the_report_its_json_and_the_curves(tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """`screening_report.py EXPERIMENT` as a user runs it: screening.md, screening.json (the
+    decision) and screening.png (the curves, a real PNG)."""
+    script, screening, runs = _screening(tmp_path)
+    monkeypatch.setattr(script, "SCREENINGS", {"test": screening})
+    out = tmp_path / "out"
+    out.mkdir()
+    script.main(["test", "--runs", str(runs), "--out-dir", str(out)])
+    assert json.loads((out / "screening.json").read_text())["decision"]["chosen"] == "vr-a"
+    assert "## Decision" in (out / "screening.md").read_text()
+    assert (out / "screening.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_equal_steps_reads_every_run_at_the_fewest_samples_of_the_task(tmp_path: Path) -> None:
+    """Two configurations, one task, seeds 0-2, 10 iterations. ref samples 2,048 steps per
+    iteration and returns 10 i + s at iteration i; vr samples 1,024 and returns 8 i + s. At
+    equal iterations ref ends ahead (100 + s against 80 + s); at equal samples S = 10,240 (vr's
+    total) the window (9,216, 10,240] holds ref's iteration 5 (50 + s) and vr's iteration 10
+    (80 + s): vr ahead, P = 1."""
+    script = _script()
+    runs = tmp_path / "runs"
+    for name, step, slope in (("ref", 2048, 10.0), ("vr", 1024, 8.0)):
+        for seed in range(3):
+            returns = [slope * i + seed for i in range(1, 11)]
+            _write_run(runs / f"s-{name}" / "Hopper-v5" / "trpo" / f"seed{seed}", "Hopper-v5", "trpo",
+                       f"s-{name}", seed, returns, [0.01] * 10, step=step)
+    groups = {name: {"Hopper-v5": [runs / f"s-{name}" / "Hopper-v5" / "trpo" / f"seed{s}" for s in range(3)]}
+              for name in ("ref", "vr")}
+    lines, reading = script.equal_steps(groups, "ref", [("vr", "ref")], resamples=100)
+    assert reading["budget"] == {"Hopper-v5": 10240.0}
+    assert reading["per_task"]["Hopper-v5"] == {"ref": [50.0, 51.0, 52.0], "vr": [80.0, 81.0, 82.0]}
+    assert reading["pairs"][0]["value"] == 1.0
+    assert "| Hopper-v5 | 10,240 | vr | 3 | 81.0 [78.5, 83.5] |" in lines
+
+
+def test_fresh_screening_report_adds_the_equal_steps_reading(tmp_path: Path) -> None:
+    """Only where the protocol has no matched TRPO (fresh samples): every candidate against the
+    reference and against its twin."""
+    script, screening, runs = _screening(tmp_path)
+    lines, summary = script.report(screening, runs, resamples=50)
+    assert "equal_steps" not in summary and not any("equal environment steps" in line for line in lines)
+    fresh = script.Screening("test", screening.configs, screening.reference, screening.reference_spec,
+                             screening.candidates, screening.twins, False, screening.spec_dir)
+    lines, summary = script.report(fresh, runs, resamples=50)
+    pairs = [(p["x"], p["y"]) for p in summary["equal_steps"]["pairs"]]
+    assert pairs == [("vr-a", "ref"), ("vr-b", "ref"), ("vr-a", "sgd"), ("vr-b", "sgd")]
+    assert "## At equal environment steps (descriptive; decides nothing)" in lines

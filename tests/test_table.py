@@ -108,3 +108,32 @@ def test_cpu_time_to_trpos_final_return_reads_the_cumulative_cpu_at_the_reaching
     cpu["T"]["svrpo"][1] = _run("svrpo", 1, [math.nan] * 4)
     rows = {row.preset: row for row in summarize(returns, cpu=cpu)}
     assert math.isnan(rows["svrpo"].percent_of_trpo_cpu)
+
+
+def test_samples_to_trpos_final_read_the_seeds_mean_steps_when_seeds_sample_differently() -> None:
+    """A fresh-sample preset whose seeds sampled 10 and 30 steps per iteration (their inner loops
+    ran for different lengths): by iteration 5 they had spent 50 and 150 steps, 100 on the
+    mean. Ten iterations, final window 1. trpo (10 steps per iteration, both seeds) ends at 4;
+    the fresh preset's seed mean is (i, i) at iteration i -> reaches 4 at iteration 4, where the
+    seeds had spent 40 and 120 steps: 80 on the mean, 80% of TRPO's 100 steps (the first seed's
+    axis alone would say 40%, the second's 120%)."""
+    trpo = [_run("trpo", s, [0.0] * 9 + [4.0]) for s in range(2)]
+    fresh = []
+    for seed, per_iteration in enumerate((10, 30)):
+        steps = np.arange(1, 11) * per_iteration
+        fresh.append(RunCurve(Path(f"T/fresh/seed{seed}"), "T", "fresh", seed, steps,
+                              np.arange(1, 11, dtype=float)))
+    rows = {row.preset: row for row in summarize({"T": {"trpo": trpo, "fresh": fresh}})}
+    assert rows["fresh"].steps_to_trpo_final == pytest.approx(80.0)
+    assert rows["fresh"].percent_of_trpo_steps == pytest.approx(80.0)
+    assert rows["fresh"].env_steps == 200  # the seeds' mean total: (100 + 300) / 2
+    assert rows["trpo"].percent_of_trpo_steps == pytest.approx(100.0)
+
+
+def test_the_curves_axis_is_the_seeds_mean_steps() -> None:
+    from svrpo.analysis.plotting import steps_axis
+
+    runs = [RunCurve(Path("a"), "T", "p", 0, np.array([10, 20, 30]), np.zeros(3)),
+            RunCurve(Path("b"), "T", "p", 1, np.array([30, 60, 90, 120]), np.zeros(4))]
+    assert steps_axis(runs, 3).tolist() == [20.0, 40.0, 60.0]
+    assert steps_axis(runs[:1], 2).tolist() == [10.0, 20.0]

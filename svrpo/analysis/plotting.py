@@ -120,6 +120,16 @@ def common_length(runs: Sequence[RunCurve]) -> int:
     return min(len(run.env_steps) for run in runs)
 
 
+def steps_axis(runs: Sequence[RunCurve], length: int) -> np.ndarray:
+    """The environment steps of the seeds' first `length` iterations: their mean over seeds.
+
+    Curves are averaged over seeds iteration by iteration. A same-batch preset samples the same
+    steps every iteration, so every seed's env_steps is the same and this is that axis itself;
+    a fresh-sample preset's iteration samples as many steps as its inner loop ran, which differs
+    between seeds, and the first seed's axis alone would misplace the others."""
+    return np.mean(np.stack([run.env_steps[:length] for run in runs]).astype(np.float64), axis=0)
+
+
 def plot_panels(
     groups: Groups,
     out: Path,
@@ -148,7 +158,7 @@ def plot_panels(
     for axis, panel in zip(axes.flat, panels, strict=False):
         for label, runs in groups[panel].items():
             length = common_length(runs)
-            x = runs[0].env_steps[:length] if x_axis == "env_steps" else np.arange(1, length + 1)
+            x = steps_axis(runs, length) if x_axis == "env_steps" else np.arange(1, length + 1)
             stacked = np.stack([smooth(r.values[:length], smoothing) for r in runs]).astype(np.float64)
             if log_scale:
                 stacked = np.log10(np.where(stacked > 0, stacked, np.nan))

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from svrpo.analysis.plotting import RunCurve, common_length, smooth
+from svrpo.analysis.plotting import RunCurve, common_length, smooth, steps_axis
 
 FINAL_FRACTION = 0.1
 """Share of the last iterations averaged into a run's final return."""
@@ -109,11 +109,12 @@ def final_window(iterations: int) -> int:
 
 
 def smoothed_seeds(runs: Sequence[RunCurve]) -> tuple[np.ndarray, np.ndarray]:
-    """(env_steps (T,), s (seeds, T)): each seed's trailing mean over the final window."""
+    """(env_steps (T,), s (seeds, T)): each seed's trailing mean over the final window; the
+    steps are the seeds' mean at each iteration (plotting.steps_axis)."""
     length = common_length(runs)
     window = final_window(length)
     curves = np.stack([smooth(run.values[:length].astype(np.float64), window) for run in runs])
-    return runs[0].env_steps[:length], curves
+    return steps_axis(runs, length), curves
 
 
 def untrained_return(runs: Sequence[RunCurve]) -> float:
