@@ -145,8 +145,9 @@ def spec_groups(screening: Screening, runs: Path, names: Sequence[str] | None = 
     return {name: run_dirs(load_spec(str(spec_path(screening, name))), runs) for name in names}
 
 
-def curves(groups: Groups, reference: str, metric: str) -> Curves:
-    """task -> configuration -> curves by seed; the reference is keyed as aggregate's REFERENCE."""
+def curves(groups: Groups, reference: str | None, metric: str) -> Curves:
+    """task -> configuration -> curves by seed; the reference (if any) is keyed as aggregate's
+    REFERENCE."""
     out: Curves = {}
     for name, by_task in groups.items():
         key = REFERENCE if name == reference else name
@@ -161,11 +162,13 @@ def write_figure(groups: Groups, out: Path, title: str, smoothing: int = 10) -> 
     iterations) -> PNG. Descriptive only: no protocol rule reads it."""
     from svrpo.analysis.plotting import plot_panels
 
-    by_task: dict[str, dict[str, list[RunCurve]]] = {}
-    for name, by_dir in groups.items():
-        for task, dirs in by_dir.items():
-            by_task.setdefault(task, {})[name] = [load_curve(d, "average_return") for d in dirs]
-    return plot_panels(by_task, out, "average return (training)", smoothing, title=title)
+    return plot_panels(curves(groups, None, "average_return"), out, "average return (training)",
+                       smoothing, title=title)
+
+
+def shown(key: str, reference: str) -> str:
+    """A configuration's name in a report: curves() keys the reference as REFERENCE."""
+    return reference if key == REFERENCE else key
 
 
 def run_medians(runs: Sequence[RunCurve]) -> np.ndarray:
@@ -228,9 +231,6 @@ def compare(groups: Groups, reference: str, resamples: int = 2000
     kl = curves(groups, reference, "mean_kl")
     learner, workers = curves(groups, reference, "cpu_learner"), curves(groups, reference, "cpu_workers")
 
-    def shown(key: str) -> str:
-        return reference if key == REFERENCE else key
-
     lines = ["| task | configuration | n | final return [95% CI] | final deterministic eval [95% CI] | "
              "area under the curve [95% CI] | mean KL moved per iteration | steps per iteration | "
              "CPU s per run (median) |", "|---|---|---|---|---|---|---|---|---|"]
@@ -242,11 +242,12 @@ def compare(groups: Groups, reference: str, resamples: int = 2000
             final_evals = last_value_scores(evals[task][key])
             kl_moved = float(np.nanmean(run_medians(kl[task][key])))
             cpu = cpu_per_run(learner[task][key], workers[task][key])
-            per_task[task][shown(key)] = {"final_return": finals.tolist(), "final_eval": final_evals.tolist(),
-                                         "area": aucs.tolist(), "kl_moved": kl_moved,
-                                         "steps_per_iteration": steps_per_iteration(task_runs),
-                                         "cpu_seconds_per_run": cpu}
-            lines.append(f"| {task} | {shown(key)} | {len(task_runs)} | {_ci(finals)} | {_ci(final_evals)} | "
+            name = shown(key, reference)
+            per_task[task][name] = {"final_return": finals.tolist(), "final_eval": final_evals.tolist(),
+                                    "area": aucs.tolist(), "kl_moved": kl_moved,
+                                    "steps_per_iteration": steps_per_iteration(task_runs),
+                                    "cpu_seconds_per_run": cpu}
+            lines.append(f"| {task} | {name} | {len(task_runs)} | {_ci(finals)} | {_ci(final_evals)} | "
                          f"{_ci(aucs)} | {kl_moved:.4f} | {steps_per_iteration(task_runs):,.0f} | "
                          + ("not recorded" if math.isnan(cpu) else f"{cpu:,.0f}") + " |")
     summary = aggregate_report(returns, evals, resamples)
@@ -258,10 +259,11 @@ def compare(groups: Groups, reference: str, resamples: int = 2000
               f"P(configuration > {reference}) [95% CI] |", "|---|---|---|---|"]
     keys = list(returns[next(iter(returns))])
     for key in keys:
-        lines.append(f"| {shown(key)} | {_entry(summary['iqm'].get(key))} | "
+        lines.append(f"| {shown(key, reference)} | {_entry(summary['iqm'].get(key))} | "
                      f"{_entry(summary['iqm_difference_to_trpo'].get(key))} | "
                      f"{_entry(summary['probability_of_improvement_over_trpo'].get(key))} |")
-    finals_by = {shown(key): [window_scores(returns[task][key]) for task in returns] for key in keys}
+    finals_by = {shown(key, reference): [window_scores(returns[task][key]) for task in returns]
+                 for key in keys}
     return lines, {"per_task": per_task, "aggregate": summary}, finals_by, kl
 
 
@@ -291,12 +293,10 @@ def equal_steps(groups: Groups, reference: str, pairs: Sequence[tuple[str, str]]
     {"budget": {task: S}, "per_task": {task: {configuration: scores}}, "pairs": [...]})."""
     returns = curves(groups, reference, "average_return")
 
-    def shown(key: str) -> str:
-        return reference if key == REFERENCE else key
-
     budgets = {task: float(min(r.env_steps[-1] for runs in by_config.values() for r in runs))
                for task, by_config in returns.items()}
-    scores = {task: {shown(key): equal_steps_scores(runs, budgets[task]) for key, runs in by_config.items()}
+    scores = {task: {shown(key, reference): equal_steps_scores(runs, budgets[task])
+                     for key, runs in by_config.items()}
               for task, by_config in returns.items()}
     lines = ["## At equal environment steps (descriptive; decides nothing)", "",
              "The mean training return over the iterations between 90% and 100% of S, per task S = the "
