@@ -62,7 +62,8 @@ TIE = 0.01
 @dataclass(frozen=True)
 class Screening:
     """One protocol's screening: its configurations, the reference, the candidates in tie-break
-    order, each candidate's twin, and whether the decision names a matched TRPO delta."""
+    order, each candidate's twin, and what its confirmation adds (a matched TRPO, the reading at
+    equal environment steps)."""
 
     experiment: str
     configs: tuple[str, ...]
@@ -74,8 +75,16 @@ class Screening:
     """In the protocol's tie-break order (the first of the tied wins)."""
     twins: Mapping[str, str]
     matched_kl: bool
+    """The decision names TRPO at the chosen configuration's mean KL moved in screening, and the
+    confirmation runs it beside the chosen configuration and its twin."""
     spec_dir: Path
     """Where the configurations' YAML specs are (the reference's is reference_spec)."""
+    normalised_by_matched: bool
+    """The confirmation's IQM is normalised by the matched TRPO (budgeted trust region) rather
+    than by TRPO at delta = 0.01 of the committed modern sweep (fresh samples)."""
+    samples_differ: bool
+    """An iteration samples a different number of steps in different configurations (fresh
+    samples): both reports add the reading at equal environment steps."""
 
 
 BT = RESULTS / "budgeted-trust-region" / "screening"
@@ -90,7 +99,7 @@ SCREENINGS = {
         ("budgeted-svrg-b0.02", "budgeted-sarah-b0.02", "budgeted-svrg-b0.04", "budgeted-sarah-b0.04"),
         {"budgeted-svrg-b0.02": "budgeted-sgd-b0.02", "budgeted-sarah-b0.02": "budgeted-sgd-b0.02",
          "budgeted-svrg-b0.04": "budgeted-sgd-b0.04", "budgeted-sarah-b0.04": "budgeted-sgd-b0.04"},
-        matched_kl=True, spec_dir=BT),
+        matched_kl=True, spec_dir=BT, normalised_by_matched=True, samples_differ=False),
     # PROTOCOL section 6: highest IQM; a tie to the smaller B, then svrpg, srvrpg, stormpg.
     "fresh-samples": Screening(
         "fresh-samples",
@@ -100,7 +109,9 @@ SCREENINGS = {
         ("svrpg-b256", "srvrpg-b256", "stormpg-b256", "svrpg-b512", "srvrpg-b512", "stormpg-b512"),
         {"svrpg-b256": "svrpg-sgd-b256", "srvrpg-b256": "svrpg-sgd-b256", "stormpg-b256": "svrpg-sgd-b256",
          "svrpg-b512": "svrpg-sgd-b512", "srvrpg-b512": "svrpg-sgd-b512", "stormpg-b512": "svrpg-sgd-b512"},
-        matched_kl=False, spec_dir=RESULTS / "fresh-samples" / "screening"),
+        # matched_kl: PROTOCOL.md, 2026-12-04 (third), before any confirmation run.
+        matched_kl=True, spec_dir=RESULTS / "fresh-samples" / "screening", normalised_by_matched=False,
+        samples_differ=True),
 }
 
 
@@ -354,7 +365,7 @@ def report(screening: Screening, runs: Path, resamples: int = 2000) -> tuple[lis
                   f"each run's median mean_kl, {float(np.nanmean(kl_runs)):.5f}, to two significant digits)."]
     lines.append("")
     result = {"per_task": per_task, "aggregate": summary, "twins": twins, "decision": decision}
-    if not screening.matched_kl:  # fresh samples: the configurations' sample counts differ
+    if screening.samples_differ:
         pairs = [(c, screening.reference) for c in screening.candidates] + [
             (c, screening.twins[c]) for c in screening.candidates]
         extra, result["equal_steps"] = equal_steps(groups, screening.reference, pairs, resamples)
@@ -364,22 +375,27 @@ def report(screening: Screening, runs: Path, resamples: int = 2000) -> tuple[lis
 
 def confirmation_specs(screening: Screening, decision: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     """{file name: spec} of the confirmation (PROTOCOL.md section 3): the chosen configuration
-    and its twin, and for the budgeted trust region TRPO at the matched delta, each its
-    screening spec on the six tasks, CONFIRMATION_SEEDS and CONFIRMATION_STEPS."""
+    and its twin, and where the protocol has one TRPO at the matched delta, each its screening
+    spec on the six tasks, CONFIRMATION_SEEDS and CONFIRMATION_STEPS. Every spec is named after
+    the chosen one's (the experiment's prefix, "-confirm-", the configuration), so TRPO borrowed
+    from another experiment's screening runs under this experiment's name."""
     import yaml
 
     from svrpo.experiments.specs import PAPER_TASKS
 
+    chosen = decision["chosen"]
+    chosen_name = str(yaml.safe_load(spec_path(screening, chosen).read_text())["name"])
+
     def confirm(name: str, rename: str | None = None, **overrides: Any) -> tuple[str, dict[str, Any]]:
         spec = yaml.safe_load(spec_path(screening, name).read_text())
         new_name = rename or name
-        spec["name"] = spec["name"].replace("-screen-", "-confirm-").replace(name, new_name)
+        spec["name"] = chosen_name.replace("-screen-", "-confirm-").replace(chosen, new_name)
         spec["tasks"] = list(PAPER_TASKS)
         spec["seeds"] = CONFIRMATION_SEEDS
         spec["overrides"] = {**spec.get("overrides", {}), "total_steps": CONFIRMATION_STEPS, **overrides}
         return f"{new_name}.yaml", spec
 
-    files = dict([confirm(decision["chosen"]), confirm(decision["twin"])])
+    files = dict([confirm(chosen), confirm(decision["twin"])])
     if screening.matched_kl:
         delta = decision["matched_trpo_max_kl"]
         files.update([confirm(screening.reference, f"trpo-d{delta:g}", max_kl=delta)])
@@ -436,14 +452,16 @@ def confirmation_plan(screening: Screening, runs: Path
     folder = RESULTS / screening.experiment / "confirmation"
     groups: Groups = {Path(name).stem: run_dirs(load_spec(str(folder / name)), runs) for name in specs}
     chosen, twin = decision["chosen"], decision["twin"]
-    if screening.matched_kl:  # budgeted trust region: normalised by, and compared with, the matched TRPO
-        matched = f"trpo-d{decision['matched_trpo_max_kl']:g}"
-        groups[COMMITTED_TRPO] = committed_trpo(runs, list(groups[chosen]))
+    matched = f"trpo-d{decision['matched_trpo_max_kl']:g}" if screening.matched_kl else None
+    groups[COMMITTED_TRPO] = committed_trpo(runs, list(groups[chosen]))
+    if screening.normalised_by_matched:  # budgeted trust region: normalised by, and compared with, it
+        assert matched is not None
         return groups, matched, [(chosen, twin, "does variance reduction beat its SGD twin?"),
                                  (chosen, matched, "is the budgeted loop more than TRPO at matched KL?")]
-    groups[COMMITTED_TRPO] = committed_trpo(runs, list(groups[chosen]))
     comparisons = [(chosen, COMMITTED_TRPO, "do fresh samples buy samples over TRPO?"),
                    (chosen, twin, "does the control variate beat its fresh-SGD twin?")]
+    if matched is not None:
+        comparisons.insert(1, (chosen, matched, "are fresh samples more than TRPO at matched KL?"))
     try:  # the best same-batch configuration: the budgeted-trust-region confirmation's choice
         same_batch = _decision("budgeted-trust-region")["chosen"]
         bt = SCREENINGS["budgeted-trust-region"]
@@ -451,8 +469,8 @@ def confirmation_plan(screening: Screening, runs: Path
         dirs = run_dirs(spec, runs)
         if not unfinished({same_batch: dirs}):
             groups[f"{same_batch} (same batch)"] = dirs
-            comparisons.insert(1, (chosen, f"{same_batch} (same batch)",
-                                   "do fresh samples beat reusing one batch?"))
+            comparisons.insert(len(comparisons) - 1, (chosen, f"{same_batch} (same batch)",
+                                                      "do fresh samples beat reusing one batch?"))
     except (ValueError, OSError):
         pass  # not confirmed yet: the report says so below
     return groups, COMMITTED_TRPO, comparisons
@@ -484,12 +502,12 @@ def confirmation_report(screening: Screening, runs: Path, resamples: int = 2000
         verdict = "no effect: the interval contains 0.5" if entry["no_effect"] else (
             f"{x} ahead" if estimate.value > 0.5 else f"{y} ahead")
         lines.append(f"| {question} P({x} > {y}) | {_entry(entry)} | {verdict} |")
-    if not screening.matched_kl and not any("same batch" in y for _, y, _ in comparisons):
+    if not screening.normalised_by_matched and not any("same batch" in y for _, y, _ in comparisons):
         lines += ["", "The budgeted-trust-region confirmation has not finished: the comparison with the "
                   "best same-batch configuration is missing."]
     lines.append("")
     result = {**tables, "answers": answers, "reference": reference}
-    if not screening.matched_kl:  # fresh samples: the configurations' sample counts differ
+    if screening.samples_differ:
         extra, result["equal_steps"] = equal_steps(groups, reference, [(x, y) for x, y, _ in comparisons],
                                                    resamples)
         lines += extra

@@ -3,6 +3,7 @@ and its wiring to the committed protocol specs."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from types import ModuleType
@@ -76,7 +77,8 @@ def _screening(tmp_path: Path, finish_all: bool = True):  # type: ignore[no-unty
                            presets[name], f"s-{name}", seed, returns, [0.02] * 10, finished=last)
     screening = script.Screening(
         "test", tuple(finals), "ref", spec_dir / "ref.yaml", ("vr-a", "vr-b"),
-        {"vr-a": "sgd", "vr-b": "sgd"}, matched_kl=True, spec_dir=spec_dir)
+        {"vr-a": "sgd", "vr-b": "sgd"}, matched_kl=True, spec_dir=spec_dir, normalised_by_matched=True,
+        samples_differ=False)
     return script, screening, runs
 
 
@@ -101,8 +103,7 @@ def test_report_reads_a_reference_that_is_not_one_of_its_configurations(tmp_path
     configurations; the report still normalises by it, shows it first, and decides among the
     candidates as before. The reference's runs count for completeness too."""
     script, screening, runs = _screening(tmp_path)
-    screening = script.Screening("test", ("vr-a", "vr-b", "sgd"), "ref", screening.reference_spec,
-                                 screening.candidates, screening.twins, False, screening.spec_dir)
+    screening = dataclasses.replace(screening, configs=("vr-a", "vr-b", "sgd"), matched_kl=False)
     lines, summary = script.report(screening, runs, resamples=200)
     assert list(summary["per_task"]["Hopper-v5"]) == ["ref", "vr-a", "vr-b", "sgd"]
     assert summary["decision"]["chosen"] == "vr-a"
@@ -177,8 +178,6 @@ def test_confirmation_report_answers_the_protocols_questions(tmp_path: Path,
     from svrpo.experiments import specs
 
     script, screening, runs = _screening(tmp_path)
-    screening = script.Screening("test", screening.configs, screening.reference, screening.reference_spec,
-                                 screening.candidates, screening.twins, True, screening.spec_dir)
     results = tmp_path / "results"
     monkeypatch.setattr(script, "RESULTS", results)
     monkeypatch.setattr(script, "CONFIRMATION_SEEDS", [100, 101, 102])
@@ -220,25 +219,29 @@ def test_no_effect_is_an_interval_containing_one_half() -> None:
 
 def test_fresh_confirmation_report_adds_the_same_batch_choice_once_it_has_finished(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The fresh-samples shape (no matched TRPO): normalised by the committed TRPO; the questions
-    are P(chosen > committed TRPO) and P(chosen > twin), and P(chosen > the budgeted-trust-region
+    """The fresh-samples shape: normalised by the committed TRPO, with TRPO at the matched KL
+    run beside it under this experiment's name; the questions are P(chosen > committed TRPO),
+    P(chosen > matched TRPO) and P(chosen > twin), and P(chosen > the budgeted-trust-region
     confirmation's choice) only once every run of that choice has finished. vr-a ends at 150 + s,
-    sgd at 120 + s, the same-batch choice at 130 + s, the committed TRPO at 100 + s."""
+    sgd at 120 + s, the matched TRPO at 160 + s (ahead of vr-a), the same-batch choice at
+    130 + s, the committed TRPO at 100 + s."""
     from svrpo.experiments import specs
 
     script, screening, runs = _screening(tmp_path)
-    screening = script.Screening("fresh-test", screening.configs, screening.reference,
-                                 screening.reference_spec, screening.candidates, screening.twins,
-                                 False, screening.spec_dir)
+    screening = dataclasses.replace(screening, experiment="fresh-test", normalised_by_matched=False,
+                                    samples_differ=True)
     results = tmp_path / "results"
     monkeypatch.setattr(script, "RESULTS", results)
     monkeypatch.setattr(script, "CONFIRMATION_SEEDS", [100, 101, 102])
     monkeypatch.setattr(specs, "PAPER_TASKS", ("Hopper-v5", "Walker2d-v5"))
-    decision = {"chosen": "vr-a", "twin": "sgd"}
+    decision = {"chosen": "vr-a", "twin": "sgd", "matched_trpo_max_kl": 0.04}
     (results / "fresh-test").mkdir(parents=True)
     (results / "fresh-test" / "screening.json").write_text(json.dumps({"decision": decision}))
     paths = script.write_confirmation(screening, decision, results / "fresh-test" / "confirmation")
-    assert sorted(p.stem for p in paths) == ["sgd", "vr-a"]  # no TRPO is re-run
+    assert sorted(p.stem for p in paths) == ["sgd", "trpo-d0.04", "vr-a"]
+    matched = load_spec(str(results / "fresh-test" / "confirmation" / "trpo-d0.04.yaml"))
+    assert matched.name == "s-trpo-d0.04" and matched.presets == ("trpo",)
+    assert matched.overrides == {"total_steps": 1_001_472, "max_kl": 0.04}
     bt_confirmation = results / "budgeted-trust-region" / "confirmation"
     bt_confirmation.mkdir(parents=True)
     (results / "budgeted-trust-region" / "screening.json").write_text(
@@ -247,7 +250,7 @@ def test_fresh_confirmation_report_adds_the_same_batch_choice_once_it_has_finish
         "name: bt-confirm-same\ntasks: [Hopper-v5, Walker2d-v5]\npresets: [svrpo-budgeted]\n"
         "seeds: [100, 101, 102]\nscale: modern\n")
     finals = {("s-vr-a", "svrpo-budgeted"): 150.0, ("s-sgd", "svrpo-budgeted"): 120.0,
-              ("bt-confirm-same", "svrpo-budgeted"): 130.0}
+              ("s-trpo-d0.04", "trpo"): 160.0, ("bt-confirm-same", "svrpo-budgeted"): 130.0}
     for (experiment, preset), final in finals.items():
         for task in ("Hopper-v5", "Walker2d-v5"):
             for seed in (100, 101, 102):
@@ -261,17 +264,20 @@ def test_fresh_confirmation_report_adds_the_same_batch_choice_once_it_has_finish
                        seed, [0.0] + [100.0 + seed] * 9, [0.005] * 10)
     lines, summary = script.confirmation_report(screening, runs, resamples=200)
     assert summary["reference"] == script.COMMITTED_TRPO
-    pairs = [(a["x"], a["y"]) for a in summary["answers"]]
-    assert pairs == [("vr-a", script.COMMITTED_TRPO), ("vr-a", "sgd")]
-    assert all(a["value"] == 1.0 and not a["no_effect"] for a in summary["answers"])
+    answers = [(a["x"], a["y"], a["value"]) for a in summary["answers"]]
+    assert answers == [("vr-a", script.COMMITTED_TRPO, 1.0), ("vr-a", "trpo-d0.04", 0.0),
+                       ("vr-a", "sgd", 1.0)]
+    assert not any(a["no_effect"] for a in summary["answers"])
+    assert ("| are fresh samples more than TRPO at matched KL? P(vr-a > trpo-d0.04) | 0.00 [0.00, 0.00] "
+            "| trpo-d0.04 ahead |" in lines)
     assert any("comparison with the best same-batch configuration is missing" in line for line in lines)
     assert len(summary["per_task"]["Hopper-v5"][script.COMMITTED_TRPO]["final_return"]) == 5
     (runs / "bt-confirm-same-modern" / "Hopper-v5" / "svrpo-budgeted" / "seed102" / "checkpoints"
      / "iter_000010.pt").write_bytes(b"")
     lines, summary = script.confirmation_report(screening, runs, resamples=200)
     answers = [(a["x"], a["y"], a["value"]) for a in summary["answers"]]
-    assert answers == [("vr-a", script.COMMITTED_TRPO, 1.0), ("vr-a", "same (same batch)", 1.0),
-                       ("vr-a", "sgd", 1.0)]
+    assert answers == [("vr-a", script.COMMITTED_TRPO, 1.0), ("vr-a", "trpo-d0.04", 0.0),
+                       ("vr-a", "same (same batch)", 1.0), ("vr-a", "sgd", 1.0)]
     assert not any("is missing" in line for line in lines)
     assert [(p["x"], p["y"]) for p in summary["equal_steps"]["pairs"]] == [(x, y) for x, y, _ in answers]
     # the same-batch configuration's per-task finals are its own runs (130 + seed)
@@ -316,14 +322,33 @@ def test_equal_steps_reads_every_run_at_the_fewest_samples_of_the_task(tmp_path:
 
 
 def test_fresh_screening_report_adds_the_equal_steps_reading(tmp_path: Path) -> None:
-    """Only where the protocol has no matched TRPO (fresh samples): every candidate against the
-    reference and against its twin."""
+    """Only where the configurations sample different numbers of steps per iteration (fresh
+    samples): every candidate against the reference and against its twin."""
     script, screening, runs = _screening(tmp_path)
     lines, summary = script.report(screening, runs, resamples=50)
     assert "equal_steps" not in summary and not any("equal environment steps" in line for line in lines)
-    fresh = script.Screening("test", screening.configs, screening.reference, screening.reference_spec,
-                             screening.candidates, screening.twins, False, screening.spec_dir)
+    fresh = dataclasses.replace(screening, samples_differ=True)
     lines, summary = script.report(fresh, runs, resamples=50)
     pairs = [(p["x"], p["y"]) for p in summary["equal_steps"]["pairs"]]
     assert pairs == [("vr-a", "ref"), ("vr-b", "ref"), ("vr-a", "sgd"), ("vr-b", "sgd")]
     assert "## At equal environment steps (descriptive; decides nothing)" in lines
+
+
+@pytest.mark.parametrize("experiment", ["budgeted-trust-region", "fresh-samples"])
+def test_the_committed_confirmation_specs_are_those_of_the_committed_decision(
+        experiment: str, tmp_path: Path) -> None:
+    """Each protocol's confirmation/ folder holds exactly the specs its committed screening
+    decision writes (fresh samples: with TRPO at the matched KL, PROTOCOL.md 2026-12-04 (third),
+    named after this experiment), byte for byte: what run_confirmation.sh runs is what the rule
+    chose."""
+    script = _script()
+    screening = script.SCREENINGS[experiment]
+    decision = json.loads((ROOT / "results" / experiment / "screening.json").read_text())["decision"]
+    written = script.write_confirmation(screening, decision, tmp_path)
+    committed = ROOT / "results" / experiment / "confirmation"
+    assert sorted(p.name for p in written) == sorted(p.name for p in committed.glob("*.yaml"))
+    for path in written:
+        assert path.read_text() == (committed / path.name).read_text()
+    matched = load_spec(str(committed / f"trpo-d{decision['matched_trpo_max_kl']:g}.yaml"))
+    assert matched.presets == ("trpo",) and matched.name.startswith(
+        {"budgeted-trust-region": "bt-confirm-", "fresh-samples": "fs-confirm-"}[experiment])
