@@ -264,7 +264,7 @@ def _parse_seed_option(text: str) -> int | list[int]:
 
 
 def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
-    from svrpo.experiments import RunStatus, load_spec, plan, run_sweep, status
+    from svrpo.experiments import RunStatus, load_spec, plan_all, run_sweep, status
     from svrpo.experiments.backends import BackendError
 
     overrides: dict[str, Any] = dict(_parse_overrides(extra))
@@ -272,7 +272,7 @@ def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
         overrides["total_steps"] = args.steps
     seeds = None if args.seeds is None else _parse_seed_option(args.seeds)
     tasks = None if args.tasks is None else [task.strip() for task in args.tasks.split(",") if task.strip()]
-    spec = load_spec(args.spec).with_changes(args.scale, seeds, overrides, tasks)
+    specs = [load_spec(name).with_changes(args.scale, seeds, overrides, tasks) for name in args.spec]
     backend = _sweep_backend(args)
     root = Path(args.root)
     if args.backend == "ray":
@@ -283,9 +283,9 @@ def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
 
     signal.signal(signal.SIGTERM, raise_keyboard_interrupt)  # stop like Ctrl-C: runs checkpoint
     try:
-        if not args.dry_run and any(status(job) is not RunStatus.DONE for job in plan(spec, root)):
+        if not args.dry_run and any(status(job) is not RunStatus.DONE for job in plan_all(specs, root)):
             backend.connect()  # before anything is written: an unreachable cluster is bad input
-        summary = run_sweep(spec, root, backend, dry_run=args.dry_run, reuse=not args.no_reuse)
+        summary = run_sweep(specs, root, backend, dry_run=args.dry_run, reuse=not args.no_reuse)
     except KeyboardInterrupt:
         print("interrupted: running runs checkpointed; run the same command again to resume",
               file=sys.stderr)
@@ -296,7 +296,8 @@ def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
         backend.close()
     if not args.dry_run:
         print(summary.line())
-        print(f"plot with: svrpo plot {root / spec.directory}")
+        for spec in specs:
+            print(f"plot with: svrpo plot {root / spec.directory}")
     return 1 if summary.failed else 0
 
 
@@ -411,7 +412,10 @@ def make_parser() -> argparse.ArgumentParser:
         "field can be set for every run as --field value. --backend ray runs each run as a Ray task "
         "(on a cluster with --address), retried and resumed if its worker or node dies.",
     )
-    sweep.add_argument("spec", metavar="SPEC", help="figure1 | figure2 | figure3 | estimators | FILE.yaml")
+    sweep.add_argument("spec", metavar="SPEC", nargs="+",
+                       help="figure1 | figure2 | figure3 | estimators | FILE.yaml; several specs run "
+                       "as one queue (task, then seed, then spec: their runs side by side, no core "
+                       "idle until the last)")
     sweep.add_argument("--scale", default=None, choices=SCALES, help="default: the spec's (laptop)")
     sweep.add_argument("--seeds", default=None,
                        help="N: seeds 0..N-1; A-B: seeds A..B; A,B,C: those seeds (default: the spec's)")

@@ -39,15 +39,23 @@ def _value(call: list[str], option: str) -> str:
     return call[call.index(option) + 1]
 
 
-def _planned_seeds(call: list[str]) -> tuple[int, ...]:
-    """The seeds `svrpo sweep SPEC --seeds VALUE` plans, by the CLI's and the spec's parsers."""
+def _planned_seeds(call: list[str], spec_path: str | None = None) -> tuple[int, ...]:
+    """The seeds `svrpo sweep SPEC... --seeds VALUE` plans for SPEC (default the first), by the
+    CLI's and the spec's parsers."""
     assert call[0] == "sweep"
-    spec = load_spec(call[1])
+    spec = load_spec(spec_path or call[1])
     return spec.with_changes(seeds=_parse_seed_option(_value(call, "--seeds"))).seeds
 
 
+def _specs(call: list[str]) -> list[str]:
+    """The SPEC arguments of `svrpo sweep SPEC [SPEC ...] --option ...`."""
+    assert call[0] == "sweep"
+    return call[1:next(i for i, word in enumerate(call) if word.startswith("--"))]
+
+
 @pytest.mark.parametrize("experiment", ["budgeted-trust-region", "fresh-samples"])
-def test_confirmation_runs_seeds_100_to_109_one_at_a_time_seed_major(tmp_path: Path, experiment: str) -> None:
+def test_confirmation_runs_seeds_100_to_109_one_at_a_time_every_spec_together(
+        tmp_path: Path, experiment: str) -> None:
     # The specs are written by the screening's decision; stand-ins are enough to see the seeds.
     experiment_dir = tmp_path / "results" / experiment
     (experiment_dir / "confirmation").mkdir(parents=True)
@@ -60,8 +68,10 @@ def test_confirmation_runs_seeds_100_to_109_one_at_a_time_seed_major(tmp_path: P
     (tmp_path / "benchmarks").mkdir()
     shutil.copy(ROOT / "benchmarks" / "run_confirmation.sh", tmp_path / "benchmarks")
     calls = _calls(experiment_dir / "run_confirmation.sh", tmp_path, str(tmp_path / "root"))
-    planned = [(Path(call[1]).stem, _planned_seeds(call)) for call in calls]
-    assert planned == [(name, (seed,)) for seed in range(100, 110) for name in names]
+    # One sweep per seed with every spec (one queue: no core idles while a spec's last run
+    # finishes alone), seed-major.
+    planned = [[(Path(spec).stem, _planned_seeds(call, spec)) for spec in _specs(call)] for call in calls]
+    assert planned == [[(name, (seed,)) for name in names] for seed in range(100, 110)]
     assert {_value(call, "--root") for call in calls} == {str(tmp_path / "root")}
 
 

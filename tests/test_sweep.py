@@ -14,7 +14,7 @@ import pytest
 
 from svrpo.cli import main
 from svrpo.config import make_preset
-from svrpo.experiments import NAMED_EXPERIMENTS, LocalBackend, SpecError, load_spec, plan
+from svrpo.experiments import NAMED_EXPERIMENTS, LocalBackend, SpecError, load_spec, plan, plan_all
 from svrpo.experiments.specs import describe_seeds
 from tests.helpers import progress_rows, without_clock
 
@@ -67,6 +67,27 @@ def test_the_plan_is_task_major_then_seed_major_with_the_presets_interleaved(tmp
     cells = [job.run_dir.relative_to(tmp_path / "figure2-laptop").parts for job in plan(spec, tmp_path)]
     assert cells == [(task, preset, f"seed{seed}") for task in ("Swimmer-v5", "Walker2d-v5")
                      for seed in (0, 1) for preset in ("svrpo", "svrpo-sgd", "trpo")]
+
+
+def test_several_specs_are_one_queue_task_major_then_seed_then_spec(tmp_path: Path) -> None:
+    """figure2 (Swimmer, Walker2d; three presets) and figure3 (the same tasks), seeds 0-1, and a
+    third spec with Hopper only and seed 1: every run of every spec once, ordered by task (in the
+    order first named), then seed, then spec (the order given), then preset; so one backend
+    queue trains all experiments' runs of a task and seed side by side. Two specs writing the
+    same run directory are refused."""
+    two = load_spec("figure2").with_changes(seeds=2)
+    three = load_spec("figure3").with_changes(seeds=2)
+    hopper = load_spec("figure2").with_changes(scale="paper", seeds=[1], tasks=["Hopper-v5"])
+    cells = [job.run_dir.relative_to(tmp_path).parts for job in plan_all([two, three, hopper], tmp_path)]
+    expected = [(spec.directory, task, preset, f"seed{seed}")
+                for task in ("Swimmer-v5", "Walker2d-v5") for seed in (0, 1)
+                for spec in (two, three) for preset in spec.presets]
+    expected += [("figure2-paper", "Hopper-v5", preset, "seed1") for preset in hopper.presets]
+    assert cells == expected
+    alone = [job.run_dir for job in plan(three, tmp_path)]
+    assert [job.run_dir for job in plan_all([three], tmp_path)] == alone
+    with pytest.raises(SpecError, match="same run"):
+        plan_all([two, two.with_changes(seeds=[1])], tmp_path)
 
 
 def test_yaml_spec_and_command_line_changes(tmp_path: Path) -> None:
@@ -201,6 +222,41 @@ def test_sweep_runs_the_grid_skips_finished_runs_and_resumes_interrupted_ones(tm
         assert without_clock(rows) == without_clock(original[run_dir])
     assert progress_rows(partial)[0] == original[partial][0], "iteration 1 was re-run instead of resumed"
     assert all(_snapshot(run_dir) == files for run_dir, files in untouched.items())
+
+
+def test_one_sweep_of_two_specs_trains_both_as_their_own_sweeps_would(tmp_path: Path) -> None:
+    """`svrpo sweep A.yaml B.yaml` as a user types it: both experiments' runs, each where its own
+    sweep would put it and with the same numbers, one summary line for all, a plot command per
+    experiment; run again, nothing is touched."""
+    first = tmp_path / "first.yaml"
+    first.write_text(TINY_YAML.replace("presets: [svrpo, trpo]", "presets: [trpo]"))
+    second = tmp_path / "second.yaml"
+    second.write_text(TINY_YAML.replace("name: tiny", "name: other").replace("presets: [svrpo, trpo]",
+                                                                            "presets: [svrpo-sgd]"))
+    root = tmp_path / "runs"
+
+    def sweep(*specs: Path, at: Path = root) -> subprocess.CompletedProcess[str]:
+        command = [sys.executable, "-m", "svrpo.cli", "sweep", *map(str, specs), "--root", str(at),
+                   "--jobs", "2"]
+        return subprocess.run(command, capture_output=True, text=True, timeout=600)
+
+    both = sweep(first, second)
+    assert both.returncode == 0, both.stderr
+    assert "4 runs: 0 already done (skipped), 0 resumed, 4 started; 4 finished" in both.stdout
+    assert f"plot with: svrpo plot {root / 'tiny-laptop'}" in both.stdout
+    assert f"plot with: svrpo plot {root / 'other-laptop'}" in both.stdout
+    assert "tiny-laptop: 1 tasks x 1 presets x 2 seeds (0-1) = 2 runs" in both.stderr
+    assert "other-laptop: 1 tasks x 1 presets x 2 seeds (0-1) = 2 runs" in both.stderr
+    alone = tmp_path / "alone"
+    assert sweep(first, at=alone).returncode == 0 and sweep(second, at=alone).returncode == 0
+    runs = [Path(name) / "InvertedPendulum-v5" / preset / f"seed{seed}"
+            for name, preset in (("tiny-laptop", "trpo"), ("other-laptop", "svrpo-sgd")) for seed in (0, 1)]
+    for run in runs:
+        assert len(progress_rows(root / run)) == 2
+        assert without_clock(progress_rows(root / run)) == without_clock(progress_rows(alone / run))
+    before = _snapshot(root)
+    again = sweep(first, second)
+    assert "4 runs: 4 already done (skipped)" in again.stdout and _snapshot(root) == before
 
 
 def test_sigterm_stops_the_sweep_and_its_runs_with_a_checkpoint(tmp_path: Path) -> None:

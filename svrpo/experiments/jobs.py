@@ -11,6 +11,7 @@ import csv
 import json
 import shutil
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
@@ -84,6 +85,24 @@ def plan(spec: ExperimentSpec, root: Path) -> list[RunJob]:
                 run_dir = root / spec.directory / task / preset / f"seed{seed}"
                 jobs.append(RunJob(run_dir, spec.config(task, preset, seed), preset, spec.name, spec.scale))
     return jobs
+
+
+def plan_all(specs: Sequence[ExperimentSpec], root: Path) -> list[RunJob]:
+    """Every run of several grids in one queue: task-major, then seed, then spec, then preset.
+
+    `plan`'s order extended across experiments, so a backend trains the experiments' runs of a
+    task and seed side by side, at equal load, and one queue keeps every core busy until its last
+    run (one sweep per experiment idles a core while its longest run finishes alone). SpecError
+    if two specs share a run directory."""
+    jobs = [job for spec in specs for job in plan(spec, root)]
+    tasks = {task: rank for rank, task in enumerate(dict.fromkeys(t for spec in specs for t in spec.tasks))}
+    seeds = {seed: rank for rank, seed in enumerate(dict.fromkeys(s for spec in specs for s in spec.seeds))}
+    seen: set[Path] = set()
+    for job in jobs:
+        if job.run_dir in seen:
+            raise SpecError(f"two specs of this sweep write the same run {job.run_dir}")
+        seen.add(job.run_dir)
+    return sorted(jobs, key=lambda job: (tasks[job.config.env_id], seeds[job.config.seed]))
 
 
 def completed_iterations(run_dir: Path) -> int:

@@ -6,6 +6,7 @@ import contextlib
 import dataclasses
 import sys
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,7 +19,7 @@ from svrpo.experiments.jobs import (
     RunStatus,
     adopt,
     identical_finished_run,
-    plan,
+    plan_all,
     prepare,
     status,
 )
@@ -55,9 +56,10 @@ class SweepSummary:
                 f"{self.started} started{reused}; {self.finished} finished{failed}")
 
 
-def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool = False,
-              reuse: bool = True) -> SweepSummary:
-    """Train every run of `spec` under `root` that is not finished; return the counts.
+def run_sweep(spec: ExperimentSpec | Sequence[ExperimentSpec], root: Path, backend: Backend,
+              dry_run: bool = False, reuse: bool = True) -> SweepSummary:
+    """Train every run of `spec` (or of several specs, in one queue: `plan_all`) under `root`
+    that is not finished; return the counts.
 
     Checks every config, task and existing run directory before anything is written or
     started (ConfigError, EnvError, SpecError). A finished run (progress.csv with
@@ -65,19 +67,25 @@ def run_sweep(spec: ExperimentSpec, root: Path, backend: Backend, dry_run: bool 
     resumes from its latest one; the rest start from scratch, except (with `reuse`) a new run
     whose exact config already finished under another experiment of `root`: that run is copied.
     """
+    specs = [spec] if isinstance(spec, ExperimentSpec) else list(spec)
+    if not specs:
+        raise SpecError("a sweep needs at least one spec")
     if root.exists() and not root.is_dir():
         raise SpecError(f"the sweep root {root} is not a directory")
-    jobs = plan(spec, root)
-    for task in spec.tasks:
+    jobs = plan_all(specs, root)
+    for task in dict.fromkeys(task for one in specs for task in one.tasks):
         env_info(task)  # EnvError for an unknown task, before anything is written
     statuses = [status(job) for job in jobs]
     counts = Counter(statuses)
     todo = [job for job, state in zip(jobs, statuses, strict=True) if state is not RunStatus.DONE]
-    _say(f"{spec.directory}: {len(spec.tasks)} tasks x {len(spec.presets)} presets x "
-         f"{len(spec.seeds)} seeds ({describe_seeds(spec.seeds)}) = {len(jobs)} runs under "
-         f"{root / spec.directory}: "
-         f"{counts[RunStatus.DONE]} done, {counts[RunStatus.PARTIAL]} to resume, "
-         f"{counts[RunStatus.NEW]} new")
+    for one in specs:
+        mine = Counter(state for job, state in zip(jobs, statuses, strict=True)
+                       if job.run_dir.is_relative_to(root / one.directory))
+        _say(f"{one.directory}: {len(one.tasks)} tasks x {len(one.presets)} presets x "
+             f"{len(one.seeds)} seeds ({describe_seeds(one.seeds)}) = {sum(mine.values())} runs under "
+             f"{root / one.directory}: "
+             f"{mine[RunStatus.DONE]} done, {mine[RunStatus.PARTIAL]} to resume, "
+             f"{mine[RunStatus.NEW]} new")
     summary = SweepSummary(len(jobs), counts[RunStatus.DONE], counts[RunStatus.PARTIAL],
                            counts[RunStatus.NEW])
     sources = {job.run_dir: identical_finished_run(job, root) if reuse else None
