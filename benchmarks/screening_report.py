@@ -15,8 +15,10 @@ on the complete screening).
 Per task and configuration: n, the final return (mean training return over the last 10% of
 iterations) with a Student-t 95% interval, the final deterministic evaluation, the area under
 the learning curve (mean return over all iterations), the mean KL moved per iteration (each run's
-median mean_kl, mean over seeds), the environment steps sampled per iteration and the CPU seconds
-per run (median). Across tasks: svrpo.experiments.aggregate's reading with the protocol's
+median mean_kl, mean over seeds), the environment steps sampled per iteration, the CPU seconds
+and the wall-clock seconds per run (medians; the wall-clock compares configurations only where
+they ran interleaved, two at a time, as the protocols schedule them). Across tasks:
+svrpo.experiments.aggregate's reading with the protocol's
 reference configuration in TRPO's place (IQM of normalised final returns, the normaliser
 re-estimated in every resample; P(X > reference)), P(X > its twin) for every candidate, and the
 selection rule.
@@ -201,6 +203,12 @@ def cpu_per_run(learner: Sequence[RunCurve], workers: Sequence[RunCurve]) -> flo
     return float(np.median(totals)) if all(math.isfinite(t) for t in totals) else math.nan
 
 
+def wall_per_run(wall: Sequence[RunCurve]) -> float:
+    """Median over runs of the wall-clock at the last iteration (NaN if a run lacks it)."""
+    finals = [float(r.values[-1]) if len(r.values) else math.nan for r in wall]
+    return float(np.median(finals)) if all(math.isfinite(t) for t in finals) else math.nan
+
+
 def select(iqms: Mapping[str, float], candidates: Sequence[str], tie: float = TIE) -> str:
     """The protocols' rule: the candidate with the highest IQM; candidates within `tie` of it
     are tied, and the first of them in `candidates` (the protocol's order) wins."""
@@ -241,10 +249,11 @@ def compare(groups: Groups, reference: str, resamples: int = 2000
     evals = curves(groups, reference, "eval_return")
     kl = curves(groups, reference, "mean_kl")
     learner, workers = curves(groups, reference, "cpu_learner"), curves(groups, reference, "cpu_workers")
+    wall = curves(groups, reference, "wall_time")
 
     lines = ["| task | configuration | n | final return [95% CI] | final deterministic eval [95% CI] | "
              "area under the curve [95% CI] | mean KL moved per iteration | steps per iteration | "
-             "CPU s per run (median) |", "|---|---|---|---|---|---|---|---|---|"]
+             "CPU s per run (median) | wall-clock s per run (median) |", "|---" * 10 + "|"]
     per_task: dict[str, dict[str, Any]] = {}
     for task, by_config in returns.items():
         per_task[task] = {}
@@ -253,14 +262,16 @@ def compare(groups: Groups, reference: str, resamples: int = 2000
             final_evals = last_value_scores(evals[task][key])
             kl_moved = float(np.nanmean(run_medians(kl[task][key])))
             cpu = cpu_per_run(learner[task][key], workers[task][key])
+            seconds = wall_per_run(wall[task][key])
             name = shown(key, reference)
             per_task[task][name] = {"final_return": finals.tolist(), "final_eval": final_evals.tolist(),
                                     "area": aucs.tolist(), "kl_moved": kl_moved,
                                     "steps_per_iteration": steps_per_iteration(task_runs),
-                                    "cpu_seconds_per_run": cpu}
+                                    "cpu_seconds_per_run": cpu, "wall_seconds_per_run": seconds}
             lines.append(f"| {task} | {name} | {len(task_runs)} | {_ci(finals)} | {_ci(final_evals)} | "
                          f"{_ci(aucs)} | {kl_moved:.4f} | {steps_per_iteration(task_runs):,.0f} | "
-                         + ("not recorded" if math.isnan(cpu) else f"{cpu:,.0f}") + " |")
+                         + " | ".join("not recorded" if math.isnan(value) else f"{value:,.0f}"
+                                      for value in (cpu, seconds)) + " |")
     summary = aggregate_report(returns, evals, resamples)
     assert summary is not None  # every configuration has runs on every task
     lines += ["", f"Across the {len(returns)} tasks, normalised by {reference} (IQM: 0 = the "
@@ -502,6 +513,9 @@ def confirmation_report(screening: Screening, runs: Path, resamples: int = 2000
         verdict = "no effect: the interval contains 0.5" if entry["no_effect"] else (
             f"{x} ahead" if estimate.value > 0.5 else f"{y} ahead")
         lines.append(f"| {question} P({x} > {y}) | {_entry(entry)} | {verdict} |")
+    borrowed = [name for name in groups if name == COMMITTED_TRPO or name.endswith("(same batch)")]
+    lines += ["", f"The CPU and wall-clock seconds of {' and '.join(borrowed)} come from the schedule "
+              "those runs were made in (another sweep's), not this confirmation's."]
     if not screening.normalised_by_matched and not any("same batch" in y for _, y, _ in comparisons):
         lines += ["", "The budgeted-trust-region confirmation has not finished: the comparison with the "
                   "best same-batch configuration is missing."]

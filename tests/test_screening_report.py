@@ -46,10 +46,10 @@ def _write_run(run_dir: Path, env_id: str, preset: str, experiment: str, seed: i
     (run_dir / "config.json").write_text(config.to_json())
     meta = {"preset": preset, "scale": "modern", "experiment": experiment}
     (run_dir / "run.json").write_text(json.dumps(meta))
-    rows = ["iteration,env_steps,average_return,eval_return,mean_kl,cpu_learner,cpu_workers"]
+    rows = ["iteration,env_steps,wall_time,average_return,eval_return,mean_kl,cpu_learner,cpu_workers"]
     for i, (r, k) in enumerate(zip(returns, kl, strict=True), start=1):
         evaluation = r if i == iterations else ""
-        rows.append(f"{i},{step * i},{r},{evaluation},{k},1.0,2.0")
+        rows.append(f"{i},{step * i},{5.0 * i + seed},{r},{evaluation},{k},1.0,2.0")
     (run_dir / "progress.csv").write_text("\n".join(rows) + "\n")
     (run_dir / "checkpoints").mkdir()
     if finished:
@@ -96,6 +96,11 @@ def test_report_applies_the_rule_and_matches_trpo_to_the_kl_moved(tmp_path: Path
     assert decision["candidate_iqm"]["vr-a"] == pytest.approx(151 / 101)
     assert summary["per_task"]["Hopper-v5"]["ref"]["final_return"] == pytest.approx([100, 101, 102])
     assert "| Hopper-v5 | vr-a | 3 | 151.0 [148.5, 153.5] | 151.0 [148.5, 153.5] |" in "\n".join(lines)
+    # mean KL, steps per iteration, CPU s (10 iterations of 1 + 2) and wall-clock s (the median
+    # of the runs' last wall_time, 50 + seed) per run
+    assert any(line.startswith("| Hopper-v5 | vr-a |") and line.endswith("| 0.0200 | 2,048 | 30 | 51 |")
+               for line in lines)
+    assert summary["per_task"]["Walker2d-v5"]["sgd"]["wall_seconds_per_run"] == 51.0
 
 
 def test_report_reads_a_reference_that_is_not_one_of_its_configurations(tmp_path: Path) -> None:
@@ -209,6 +214,8 @@ def test_confirmation_report_answers_the_protocols_questions(tmp_path: Path,
     assert ("| does variance reduction beat its SGD twin? P(vr-a > sgd) | 1.00 [1.00, 1.00] | vr-a ahead |"
             in lines)
     assert set(summary["per_task"]["Hopper-v5"]) == {"vr-a", "sgd", "trpo-d0.02", script.COMMITTED_TRPO}
+    assert (f"The CPU and wall-clock seconds of {script.COMMITTED_TRPO} come from the schedule those runs "
+            "were made in (another sweep's), not this confirmation's.") in lines
 
 
 def test_no_effect_is_an_interval_containing_one_half() -> None:
@@ -279,6 +286,8 @@ def test_fresh_confirmation_report_adds_the_same_batch_choice_once_it_has_finish
     assert answers == [("vr-a", script.COMMITTED_TRPO, 1.0), ("vr-a", "trpo-d0.04", 0.0),
                        ("vr-a", "same (same batch)", 1.0), ("vr-a", "sgd", 1.0)]
     assert not any("is missing" in line for line in lines)
+    borrowed = f"seconds of {script.COMMITTED_TRPO} and same (same batch) come from"
+    assert any(borrowed in line for line in lines)
     assert [(p["x"], p["y"]) for p in summary["equal_steps"]["pairs"]] == [(x, y) for x, y, _ in answers]
     # the same-batch configuration's per-task finals are its own runs (130 + seed)
     same_batch = summary["per_task"]["Walker2d-v5"]["same (same batch)"]
