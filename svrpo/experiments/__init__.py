@@ -30,7 +30,6 @@ __all__ = [
     "load_spec",
     "plan",
     "plan_all",
-    "plan_all",
     "prepare",
     "run_sweep",
     "status",

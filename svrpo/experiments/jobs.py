@@ -102,7 +102,12 @@ def plan_all(specs: Sequence[ExperimentSpec], root: Path) -> list[RunJob]:
         if job.run_dir in seen:
             raise SpecError(f"two specs of this sweep write the same run {job.run_dir}")
         seen.add(job.run_dir)
-    return sorted(jobs, key=lambda job: (tasks[job.config.env_id], seeds[job.config.seed]))
+    def cell(job: RunJob) -> tuple[int, int]:
+        # From the run's place in the grid (ROOT/EXPERIMENT/TASK/PRESET/seedK), which an override
+        # of a config field cannot move.
+        return tasks[job.run_dir.parent.parent.name], seeds[int(job.run_dir.name.removeprefix("seed"))]
+
+    return sorted(jobs, key=cell)
 
 
 def completed_iterations(run_dir: Path) -> int:
