@@ -406,7 +406,8 @@ def make_parser() -> argparse.ArgumentParser:
         "sweep",
         allow_abbrev=False,
         help="train a grid of tasks x presets x seeds (figure1, figure2, figure3, estimators or a YAML file)",
-        description="Train every run of one or more experiments (one queue) into ROOT/NAME-SCALE/ENV/PRESET/seedK/. "
+        description="Train every run of one or more experiments (one queue) into "
+        "ROOT/NAME-SCALE/ENV/PRESET/seedK/. "
         "Finished runs are skipped, unfinished ones resume from their last checkpoint, and a new run "
         "whose exact config already finished under another experiment of ROOT is copied. Any config "
         "field can be set for every run as --field value. --backend ray runs each run as a Ray task "
