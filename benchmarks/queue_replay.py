@@ -12,7 +12,6 @@ started on the first free core, as LocalBackend starts them.
 from __future__ import annotations
 
 import argparse
-import csv
 import statistics
 import sys
 from collections.abc import Sequence
@@ -20,6 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from svrpo.experiments.specs import PAPER_TASKS  # noqa: E402
+from svrpo.rundir.logging import read_progress  # noqa: E402
 
 
 def replay(durations: Sequence[float], cores: int = 2) -> float:
@@ -33,9 +33,8 @@ def replay(durations: Sequence[float], cores: int = 2) -> float:
 
 def final_wall_time(run_dir: Path) -> float | None:
     """The run's wall-clock at its last progress row (None without rows)."""
-    with open(run_dir / "progress.csv", newline="") as handle:
-        rows = list(csv.DictReader(handle))
-    return float(rows[-1]["wall_time"]) if rows else None
+    rows = read_progress(run_dir / "progress.csv")
+    return rows[-1]["wall_time"] if rows else None
 
 
 def median_durations(runs: Path, experiments: Sequence[str]) -> dict[tuple[str, str], float]:

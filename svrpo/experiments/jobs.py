@@ -102,6 +102,7 @@ def plan_all(specs: Sequence[ExperimentSpec], root: Path) -> list[RunJob]:
         if job.run_dir in seen:
             raise SpecError(f"two specs of this sweep write the same run {job.run_dir}")
         seen.add(job.run_dir)
+
     def cell(job: RunJob) -> tuple[int, int]:
         # From the run's place in the grid (ROOT/EXPERIMENT/TASK/PRESET/seedK), which an override
         # of a config field cannot move.
