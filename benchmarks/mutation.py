@@ -10,8 +10,9 @@ original, or a deliberate blind spot). Not part of CI: one mutant takes ~10 s to
     python benchmarks/mutation.py --only fisher    # re-run the mutants whose name contains
                                                    # "fisher"; the report keeps the others
 
-The copy holds the package and the tests only; PYTHONPATH points the tests (and the sampling
-worker processes they spawn) at it, so the checkout itself is never modified.
+The copy holds the package, the tests and benchmarks/ (results/ linked: the tests only read it);
+PYTHONPATH points the tests (and the sampling worker processes they spawn) at it, so the
+checkout itself is never modified.
 """
 
 from __future__ import annotations
@@ -48,6 +49,14 @@ STATISTICS_TESTS = ("tests/test_table.py", "tests/test_aggregate.py", "tests/tes
 """The tests of the evidence statistics (svrpo/experiments/table.py and aggregate.py: final
 return and its Student-t interval, samples and wall-clock to TRPO's final, IQM with the
 per-resample normaliser, probability of improvement, the sensitivity readings)."""
+
+REPORT_TESTS = ("tests/test_screening_report.py",)
+"""The tests of benchmarks/screening_report.py: the pre-registered experiments' selection rule,
+matched KL, confirmation specs and questions, the equal-steps reading."""
+
+QUEUE_TESTS = ("tests/test_sweep.py::test_several_specs_are_one_queue_task_major_then_seed_then_spec",
+               "tests/test_sweep.py::test_the_plan_is_task_major_then_seed_major_with_the_presets_interleaved")
+"""The tests of the sweep's plan (svrpo/experiments/jobs.py: plan and plan_all's one queue)."""
 
 
 @dataclass(frozen=True)
@@ -486,6 +495,96 @@ MUTANTS = [
            "run.values[:length].astype(np.float64)",
            "the CPU time at the reaching iteration is that iteration's, not the sum up to it",
            STATISTICS_TESTS),
+    # --- benchmarks/screening_report.py: the pre-registered experiments' decisions ---------
+    Mutant("report-tie-ignored", "benchmarks/screening_report.py",
+           "return next(c for c in candidates if iqms[c] > best - tie)",
+           "return next(c for c in candidates if iqms[c] >= best)",
+           "an IQM difference below the tie threshold is not a tie (the protocol order never decides)",
+           REPORT_TESTS),
+    Mutant("report-lowest-iqm-chosen", "benchmarks/screening_report.py",
+           "best = max(iqms[c] for c in candidates)", "best = min(iqms[c] for c in candidates)",
+           "the candidate with the lowest IQM is confirmed", REPORT_TESTS),
+    Mutant("report-three-significant-digits", "benchmarks/screening_report.py",
+           "return round(value, 1 - int(math.floor(math.log10(abs(value)))))",
+           "return round(value, 2 - int(math.floor(math.log10(abs(value)))))",
+           "the matched TRPO delta rounded to three significant digits", REPORT_TESTS),
+    Mutant("report-no-effect-from-the-point-estimate", "benchmarks/screening_report.py",
+           'return bool(estimate["ci"][0] <= 0.5 <= estimate["ci"][1])',
+           'return bool(abs(estimate["value"] - 0.5) < 0.05)',
+           "'no effect' read from the point estimate, not from the interval", REPORT_TESTS),
+    Mutant("report-finished-one-checkpoint-short", "benchmarks/screening_report.py",
+           'return checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations).is_file()',
+           'return checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations - 1).is_file()',
+           "a run one iteration short of its budget counts as finished", REPORT_TESTS),
+    Mutant("report-matched-kl-of-the-reference", "benchmarks/screening_report.py",
+           "kl_runs = np.concatenate([run_medians(kl[task][chosen]) for task in kl])",
+           "kl_runs = np.concatenate([run_medians(kl[task][next(iter(kl[task]))]) for task in kl])",
+           "TRPO matched to the reference's KL moved, not the chosen configuration's", REPORT_TESTS),
+    Mutant("report-confirmation-on-screening-seeds", "benchmarks/screening_report.py",
+           'spec["seeds"] = CONFIRMATION_SEEDS', 'spec["seeds"] = spec["seeds"]',
+           "the confirmation reuses the screening's seeds", REPORT_TESTS),
+    Mutant("report-confirmation-keeps-screening-budget", "benchmarks/screening_report.py",
+           '{**spec.get("overrides", {}), "total_steps": CONFIRMATION_STEPS, **overrides}',
+           '{"total_steps": CONFIRMATION_STEPS, **spec.get("overrides", {}), **overrides}',
+           "the confirmation keeps the screening spec's step budget", REPORT_TESTS),
+    Mutant("report-twin-question-reversed", "benchmarks/screening_report.py",
+           '(chosen, twin, "does variance reduction beat its SGD twin?")',
+           '(twin, chosen, "does variance reduction beat its SGD twin?")',
+           "P(twin > chosen) reported as the answer to 'does variance reduction beat its twin?'",
+           REPORT_TESTS),
+    Mutant("report-budgeted-normalised-by-committed-trpo", "benchmarks/screening_report.py",
+           "return groups, matched, [", "return groups, COMMITTED_TRPO, [",
+           "the budgeted confirmation's IQM normalised by the committed TRPO, not the matched one",
+           REPORT_TESTS),
+    Mutant("report-fresh-trpo-question-reversed", "benchmarks/screening_report.py",
+           '(chosen, COMMITTED_TRPO, "do fresh samples buy samples over TRPO?")',
+           '(COMMITTED_TRPO, chosen, "do fresh samples buy samples over TRPO?")',
+           "P(TRPO > fresh) reported as the answer to 'do fresh samples buy samples?'", REPORT_TESTS),
+    Mutant("report-equal-steps-whole-curve", "benchmarks/screening_report.py",
+           "inside = (steps > (1 - FINAL_FRACTION) * budget) & (steps <= budget)",
+           "inside = (steps > 0) & (steps <= budget)",
+           "the equal-steps score averages every iteration up to S, not the final 10%", REPORT_TESTS),
+    Mutant("report-equal-steps-at-the-most-samples", "benchmarks/screening_report.py",
+           "budgets = {task: float(min(r.env_steps[-1]", "budgets = {task: float(max(r.env_steps[-1]",
+           "S is the most samples any run drew, not the fewest", REPORT_TESTS),
+    Mutant("report-kl-moved-mean-not-median", "benchmarks/screening_report.py",
+           "kl_moved = float(np.nanmean(run_medians(kl[task][key])))",
+           "kl_moved = float(np.nanmean([np.nanmean(r.values) for r in kl[task][key]]))",
+           "the KL moved per iteration as each run's mean, not its median", REPORT_TESTS),
+    Mutant("report-confirmation-read-unfinished", "benchmarks/screening_report.py",
+           '        raise ValueError(f"{len(missing)} runs have not finished (first: {missing[0]})")\n',
+           "        pass\n",
+           "the confirmation report reads numbers before every run has finished", REPORT_TESTS),
+    Mutant("report-same-batch-before-it-finished", "benchmarks/screening_report.py",
+           "if not unfinished({same_batch: dirs}):", "if True:",
+           "the same-batch comparison made from unfinished runs", REPORT_TESTS),
+    Mutant("report-cpu-without-workers", "benchmarks/screening_report.py",
+           "totals = [float(np.sum(a.values.astype(np.float64) + b.values.astype(np.float64)))",
+           "totals = [float(np.sum(a.values.astype(np.float64) + 0 * b.values.astype(np.float64)))",
+           "CPU per run counts the learner only, not the sampling workers", REPORT_TESTS),
+    Mutant("report-wall-at-the-first-iteration", "benchmarks/screening_report.py",
+           "finals = [float(r.values[-1]) if len(r.values) else math.nan for r in wall]",
+           "finals = [float(r.values[0]) if len(r.values) else math.nan for r in wall]",
+           "wall-clock per run read at the first iteration", REPORT_TESTS),
+    Mutant("report-eval-reads-training", "benchmarks/screening_report.py",
+           "final_evals = last_value_scores(evals[task][key])",
+           "final_evals = last_value_scores(returns[task][key])",
+           "the deterministic-evaluation column reads the training return", REPORT_TESTS),
+    Mutant("report-area-is-final-window", "benchmarks/screening_report.py",
+           "finals, aucs = window_scores(task_runs), area_scores(task_runs)",
+           "finals, aucs = window_scores(task_runs), window_scores(task_runs)",
+           "the area-under-the-curve column is the final window again", REPORT_TESTS),
+    # --- svrpo/experiments/jobs.py: one queue of several specs -------------------------------
+    Mutant("queue-duplicate-run-dirs-allowed", "svrpo/experiments/jobs.py",
+           "        if job.run_dir in seen:\n", "        if False:\n",
+           "two specs may write the same run directory", QUEUE_TESTS),
+    Mutant("queue-spec-major", "svrpo/experiments/jobs.py",
+           "    return sorted(jobs, key=cell)\n", "    return jobs\n",
+           "one spec's runs after another's, not task-major across specs", QUEUE_TESTS),
+    Mutant("queue-seed-before-task", "svrpo/experiments/jobs.py",
+           'return tasks[job.run_dir.parent.parent.name], seeds[int(job.run_dir.name.removeprefix("seed"))]',
+           'return seeds[int(job.run_dir.name.removeprefix("seed"))], tasks[job.run_dir.parent.parent.name]',
+           "the queue ordered seed-major, not task-major", QUEUE_TESTS),
 ]
 
 
@@ -494,6 +593,11 @@ def run_mutant(mutant: Mutant, workdir: Path, timeout: float) -> dict[str, Any]:
     copy = workdir / mutant.name
     shutil.copytree(ROOT / "svrpo", copy / "svrpo", ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copytree(ROOT / "tests", copy / "tests", ignore=shutil.ignore_patterns("__pycache__"))
+    # The report script's tests load benchmarks/ from the copy's root and read the committed
+    # results (decisions, specs) that it refers to; results/ is read-only to them, so linked.
+    shutil.copytree(ROOT / "benchmarks", copy / "benchmarks",
+                    ignore=shutil.ignore_patterns("__pycache__", "results"))
+    (copy / "results").symlink_to(ROOT / "results")
     shutil.copy(ROOT / "pyproject.toml", copy / "pyproject.toml")
     target = copy / mutant.path
     text = target.read_text()
@@ -535,7 +639,8 @@ def main() -> None:
     survivors = [name for name, r in results.items() if r["status"] != "killed"]
     report = {
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
-        "tests": TESTS, "statistics_tests": list(STATISTICS_TESTS), "mutants": len(results),
+        "tests": TESTS, "statistics_tests": list(STATISTICS_TESTS), "report_tests": list(REPORT_TESTS),
+        "queue_tests": list(QUEUE_TESTS), "mutants": len(results),
         "killed": len(results) - len(survivors), "not_killed": survivors, "results": results,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -39,7 +39,8 @@ def test_two_significant_digits() -> None:
 def _write_run(run_dir: Path, env_id: str, preset: str, experiment: str, seed: int,
                returns: list[float], kl: list[float], finished: bool = True, step: int = 2048) -> None:
     """A run directory as a sweep leaves it: config.json, run.json, progress.csv, and the final
-    checkpoint's file when finished (the report only checks that it exists)."""
+    checkpoint's file when finished (the report only checks that it exists). The deterministic
+    evaluation, on the last row only, is the last return + 7 (told apart from the training return)."""
     iterations = len(returns)
     config = make_preset(preset, env_id, "modern").replace(seed=seed, total_steps=2048 * iterations)
     run_dir.mkdir(parents=True)
@@ -48,7 +49,7 @@ def _write_run(run_dir: Path, env_id: str, preset: str, experiment: str, seed: i
     (run_dir / "run.json").write_text(json.dumps(meta))
     rows = ["iteration,env_steps,wall_time,average_return,eval_return,mean_kl,cpu_learner,cpu_workers"]
     for i, (r, k) in enumerate(zip(returns, kl, strict=True), start=1):
-        evaluation = r if i == iterations else ""
+        evaluation = r + 7.0 if i == iterations else ""
         rows.append(f"{i},{step * i},{5.0 * i + seed},{r},{evaluation},{k},1.0,2.0")
     (run_dir / "progress.csv").write_text("\n".join(rows) + "\n")
     (run_dir / "checkpoints").mkdir()
@@ -59,11 +60,13 @@ def _write_run(run_dir: Path, env_id: str, preset: str, experiment: str, seed: i
 def _screening(tmp_path: Path, finish_all: bool = True):  # type: ignore[no-untyped-def]
     """Two tasks, seeds 0-2, 10 iterations. ref (trpo) ends at 100 + seed; vr-a at 150 + seed,
     vr-b at 149.9 + seed (a tie with vr-a at the IQM's 0.01), sgd at 120 + seed. The first return
-    of every run is 0 (R0 = 0). mean_kl: vr-a 0.02 per iteration on both tasks."""
+    of every run is 0 (R0 = 0). mean_kl per iteration: vr-a 0.5 at the first iteration, then
+    0.02 (each run's median 0.02, its mean 0.068); ref 0.007, vr-b 0.03, sgd 0.01."""
     script = _script()
     spec_dir, runs = tmp_path / "specs", tmp_path / "runs"
     spec_dir.mkdir()
     finals = {"ref": 100.0, "vr-a": 150.0, "vr-b": 149.9, "sgd": 120.0}
+    kls = {"ref": [0.007] * 10, "vr-a": [0.5] + [0.02] * 9, "vr-b": [0.03] * 10, "sgd": [0.01] * 10}
     presets = {"ref": "trpo", "vr-a": "svrpo-budgeted", "vr-b": "svrpo-budgeted", "sgd": "svrpo-budgeted"}
     for name, final in finals.items():
         (spec_dir / f"{name}.yaml").write_text(
@@ -74,7 +77,7 @@ def _screening(tmp_path: Path, finish_all: bool = True):  # type: ignore[no-unty
                 returns = [0.0] + [final + seed] * 9
                 last = finish_all or not (name == "sgd" and seed == 2)
                 _write_run(runs / f"s-{name}-modern" / task / presets[name] / f"seed{seed}", task,
-                           presets[name], f"s-{name}", seed, returns, [0.02] * 10, finished=last)
+                           presets[name], f"s-{name}", seed, returns, kls[name], finished=last)
     screening = script.Screening(
         "test", tuple(finals), "ref", spec_dir / "ref.yaml", ("vr-a", "vr-b"),
         {"vr-a": "sgd", "vr-b": "sgd"}, matched_kl=True, spec_dir=spec_dir, normalised_by_matched=True,
@@ -85,7 +88,7 @@ def _screening(tmp_path: Path, finish_all: bool = True):  # type: ignore[no-unty
 def test_report_applies_the_rule_and_matches_trpo_to_the_kl_moved(tmp_path: Path) -> None:
     """IQM normalised by ref: vr-a (150 + s) / (101) pooled, vr-b 0.001 lower per run: a tie at
     0.01, so vr-a (first in the order) is chosen; its twin sgd; P(vr-a > sgd) = 1 on both tasks;
-    matched TRPO 0.02 (every run's median mean_kl)."""
+    matched TRPO 0.02 (vr-a's runs' median mean_kl: not their mean, not another configuration's)."""
     script, screening, runs = _screening(tmp_path)
     lines, summary = script.report(screening, runs, resamples=200)
     decision = summary["decision"]
@@ -95,7 +98,10 @@ def test_report_applies_the_rule_and_matches_trpo_to_the_kl_moved(tmp_path: Path
     # IQM of vr-a: pooled (150, 151, 152) / 101 on both tasks, middle half -> 151/101.
     assert decision["candidate_iqm"]["vr-a"] == pytest.approx(151 / 101)
     assert summary["per_task"]["Hopper-v5"]["ref"]["final_return"] == pytest.approx([100, 101, 102])
-    assert "| Hopper-v5 | vr-a | 3 | 151.0 [148.5, 153.5] | 151.0 [148.5, 153.5] |" in "\n".join(lines)
+    # final return 150 + s; evaluation 157 + s; area (0 + 9 (150 + s)) / 10 = 135 + 0.9 s
+    assert ("| Hopper-v5 | vr-a | 3 | 151.0 [148.5, 153.5] | 158.0 [155.5, 160.5] | 135.9 [133.7, 138.1] |"
+            in "\n".join(lines))
+    assert summary["per_task"]["Hopper-v5"]["vr-a"]["area"] == pytest.approx([135.0, 135.9, 136.8])
     # mean KL, steps per iteration, CPU s (10 iterations of 1 + 2) and wall-clock s (the median
     # of the runs' last wall_time, 50 + seed) per run
     assert any(line.startswith("| Hopper-v5 | vr-a |") and line.endswith("| 0.0200 | 2,048 | 30 | 51 |")
@@ -216,6 +222,11 @@ def test_confirmation_report_answers_the_protocols_questions(tmp_path: Path,
     assert set(summary["per_task"]["Hopper-v5"]) == {"vr-a", "sgd", "trpo-d0.02", script.COMMITTED_TRPO}
     assert (f"The CPU and wall-clock seconds of {script.COMMITTED_TRPO} come from the schedule those runs "
             "were made in (another sweep's), not this confirmation's.") in lines
+    # One confirmation run short of its final checkpoint: no numbers at all.
+    (runs / "s-sgd-modern" / "Walker2d-v5" / "svrpo-budgeted" / "seed101" / "checkpoints"
+     / "iter_000010.pt").unlink()
+    with pytest.raises(ValueError, match="1 runs have not finished"):
+        script.confirmation_report(screening, runs, resamples=50)
 
 
 def test_no_effect_is_an_interval_containing_one_half() -> None:
