@@ -249,6 +249,7 @@ def test_fresh_steps_come_from_the_iterate_and_every_step_is_counted_and_fitted(
     fresh = row["fresh_steps"]
     assert row["snapshot_steps"] == 200 and fresh == 50 * (len(recorded) - 1) > 0
     assert run.env_steps == 200 + fresh
+    assert result.update.stats is not None and result.update.stats.fresh_steps == fresh  # the loop's count
     assert fitted == [200 + fresh]
     assert torch.equal(recorded[0][0], snapshot_point)
     moved = [point for point, _ in recorded[1:] if not torch.equal(point, snapshot_point)]
@@ -289,7 +290,9 @@ def test_stopping_and_resuming_a_fresh_run_gives_the_uninterrupted_rows(tmp_path
 
 def test_every_accepted_fresh_step_is_inside_both_balls_on_its_fresh_states() -> None:
     """With the budgeted anchor each accepted step is within kl_step of w_j and within max_kl of
-    pi_{w~}, measured on the fresh states of that step, on a run where the budget binds."""
+    pi_{w~}, measured on the fresh states of that step, on a run where the budget binds. Every
+    step's Fisher states are rows of its own batch (the fresh one for j >= 1), and its line search
+    starts from U_j(w_j) on that batch."""
     from svrpo.models.policy import gaussian_kl
 
     config = _tiny("svrpg", inner_steps=6, kl_step=0.004, max_kl=0.006, inner_stop="all")
@@ -305,14 +308,26 @@ def test_every_accepted_fresh_step_is_inside_both_balls_on_its_fresh_states() ->
 
     search = run.parts.line_search
 
+    fisher_states: list[torch.Tensor] = []
+    fisher_product = run.parts.fisher_product
+
+    def recording_fisher_product(policy: Any, observations: torch.Tensor, damping: float) -> Any:
+        fisher_states.append(observations)
+        return fisher_product(policy, observations, damping)
+
+    start_objectives: list[tuple[float, float]] = []
+
     def recording_search(**arguments: Any) -> Any:
+        # At the start point (w_j) the search's own evaluation is U_j(w_j) on the step's batch.
+        start_objectives.append((arguments["start_objective"], arguments["evaluate"]()[0]))
         result = search(**arguments)
         if result.accepted:
             accepted.append((*bounds[-1], flat_parameters(run.policy)))
         return result
 
     anchor.bound = recording_bound  # type: ignore[method-assign]
-    run.parts = dataclasses.replace(run.parts, line_search=recording_search)
+    run.parts = dataclasses.replace(run.parts, line_search=recording_search,
+                                    fisher_product=recording_fisher_product)
     rejections = 0
     try:
         kls = []
@@ -324,6 +339,11 @@ def test_every_accepted_fresh_step_is_inside_both_balls_on_its_fresh_states() ->
         run.sampler.close()
     later = [entry for entry in accepted if entry[0].also_within]
     assert later and rejections > 0  # fresh steps were accepted, and the budget rejected trials
+    assert len(fisher_states) == len(bounds) == len(start_objectives) > 3
+    for states, (_, observations) in zip(fisher_states, bounds, strict=True):
+        assert (states[:, None, :] == observations[None, :, :]).all(-1).any(1).all()
+    for given, measured in start_objectives:
+        assert math.isclose(given, measured, rel_tol=1e-9, abs_tol=1e-12), (given, measured)
     assert all(kl <= config.max_kl * (1 + 1e-6) for kl in kls)  # on the snapshot states too
     probe = copy.deepcopy(run.policy)
     for kl_bound, observations, point in accepted:
