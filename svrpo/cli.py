@@ -1,4 +1,4 @@
-"""`svrpo train | sweep | plot | evaluate`: the command-line front end.
+"""`svrpo train | sweep | plot | evaluate | gradient-error`: the command-line front end.
 
 Bad input: one line on stderr, exit code 2.
 """
@@ -328,6 +328,37 @@ def _evaluate(args: argparse.Namespace, extra: list[str]) -> int:
     return 0
 
 
+def _gradient_error(args: argparse.Namespace, extra: list[str]) -> int:
+    from svrpo.analysis.gradient_error import measure_gradient_error
+
+    names = [name for text in args.estimator for name in text.split(",") if name]
+    if len(set(names)) != len(names):
+        raise UsageError(f"--estimator names an estimator twice: {','.join(names)}")
+    overrides = {name: coerce_field(name, value) for name, value in _parse_overrides(extra).items()}
+    if "seed" in overrides:
+        raise UsageError("give the seed as --seed (it seeds the tool's sampler and mini-batches)")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out} is a file; give a directory")
+    report = measure_gradient_error(Path(args.path), names, args.reference_steps, args.parts,
+                                    args.seed, overrides, args.initial, out, args.update_from)
+    scale = report.noise_scale
+    print(f"{report.env_id}, iteration {report.iteration} ({report.env_steps} steps), {report.source}")
+    print(f"B_simple = {scale.b_simple:.4g} (tr Sigma = {scale.trace_covariance:.4g}, |G|^2 = "
+          f"{scale.gradient_norm_sq:.4g}, M = {scale.reference_rows}); N = {report.batch_size}: "
+          f"||gb - G||^2 = {report.batch_sampling_error:.4g} (expected tr Sigma / N = "
+          f"{scale.expected_sampling_error(report.batch_size):.4g})")
+    for record in report.steps:
+        g = record.gradient
+        print(f"{record.estimator:>10} j={record.step:<3} |g-G|^2 {g.total.squared:.4g} = "
+              f"|g-gb|^2 {g.noise.squared:.4g} + |gb-G|^2 {g.sampling.squared:.4g} + cross "
+              f"{g.cross_term:.4g}; cos(g, G) {g.total.cosine:.3f}, cos(s, F^-1 G) "
+              f"{record.direction.total.cosine:.3f}")
+    print(f"wrote {out / 'steps.csv'}, {out / 'summary.json'}, {out / 'gradient_error.png'} "
+          f"({report.cpu_seconds:.1f} CPU s in this process)")
+    return 0
+
+
 def _check_writable(path: Path, flag: str) -> None:
     """UsageError unless `path` can be created (its directory exists or can be made, writable)."""
     if path.is_dir():
@@ -458,6 +489,36 @@ def make_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--allow-import", action="append", default=[], metavar="MODULE",
                           help="allow a file naming a 'MODULE:Env' task to import MODULE (runs its code)")
     evaluate.set_defaults(handler=_evaluate)
+    gradient_error = commands.add_parser(
+        "gradient-error",
+        allow_abbrev=False,
+        help="each inner step's gradient error against the true gradient, and B_simple, at a policy",
+        description="At the policy of RUN_DIR's latest checkpoint (or a checkpoint .pt file): "
+        "estimate the true surrogate gradient on a large reference batch, replay one outer "
+        "iteration of each estimator on an ordinary batch of N (the config's batch_size) and "
+        "write, per inner step, the error of its gradient and direction against the true and the "
+        "batch gradient (steps.csv), B_simple (summary.json) and a figure. Any config field can "
+        "be set for the replay as --field value (e.g. --inner_steps 10 --batch_size 50000). "
+        "See docs/gradient-error.md.",
+    )
+    gradient_error.add_argument("path", metavar="RUN_DIR_OR_CHECKPOINT")
+    gradient_error.add_argument("--estimator", action="append", default=[], metavar="NAME[,NAME]",
+                                help="estimator(s) to replay with the checkpoint's config (full, "
+                                "sgd, svrg, sarah, storm, page, svrpg, srvrpg, stormpg, fresh_sgd)")
+    gradient_error.add_argument("--update-from", action="append", default=[], metavar="RUN_DIR",
+                                help="replay that run's whole config (e.g. an estimator's confirmed "
+                                "run) at the checkpoint's policy; repeatable")
+    gradient_error.add_argument("--reference-steps", type=int, default=200_000,
+                                help="M: steps of the reference batch (default 200000)")
+    gradient_error.add_argument("--parts", type=int, default=40,
+                                help="K: contiguous parts of the reference, for its standard error "
+                                "and tr(Sigma) (default 40)")
+    gradient_error.add_argument("--seed", type=int, default=0,
+                                help="seeds the sampler and mini-batches (same seed: same batches)")
+    gradient_error.add_argument("--initial", action="store_true",
+                                help="the untrained policy of the run's config (iteration 0)")
+    gradient_error.add_argument("--out", default="gradient-error", help="output directory")
+    gradient_error.set_defaults(handler=_gradient_error)
     # `svrpo bench` owns its options (svrpo/tools/bench.py); everything after `bench` is passed through.
     bench = commands.add_parser("bench", add_help=False,
                                 help="quick sampling-vs-physics and update-cost check of this machine")

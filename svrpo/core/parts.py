@@ -52,6 +52,12 @@ PART_REGISTRIES: dict[str, Mapping[str, Callable[[Config, RandomStreams], Any]]]
 """Config field -> the registry of the part kind it names."""
 
 
+StepObserver = Callable[[int, torch.Tensor, torch.Tensor, MatVec], None]
+"""(j, the step's gradient estimate g_j, its search direction s_j, the step's Fisher product
+v -> (F + damping I) v) -> None, called while the policy is at w_j, before the line search moves
+it. It must not change the policy or the estimator."""
+
+
 @dataclass(frozen=True)
 class InnerLoop:
     """The numbers of the J inner trust-region steps (Algorithm 1, lines 5-12)."""
@@ -91,6 +97,9 @@ class UpdateParts:
     """The backtracking search under the KL bound (keyword arguments of backtracking_line_search)."""
     variance_probe: Callable[[GradientEstimator, BatchGradients, list[torch.Tensor]], VarianceDiagnostic] = (
         estimator_variances)
+    observe_step: StepObserver | None = None
+    """Called once per inner step that reaches a direction, in both inner loops (None: training,
+    nothing called). Used by the gradient-error tool (svrpo/analysis/gradient_error.py)."""
 
 
     def lifecycle(self) -> dict[str, Any]:

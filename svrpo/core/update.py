@@ -255,6 +255,8 @@ def trust_region_step(
         return None
     fisher_product = parts.fisher_product(policy, fisher_observations, loop.cg_damping)
     direction, cg = parts.metric.direction(gradient, fisher_product)
+    if parts.observe_step is not None:  # the gradient-error tool's view of the step (one place)
+        parts.observe_step(tally.attempted - 1, gradient, direction, fisher_product)
     if cg is not None:
         tally.cg_residuals.append(cg.residual_norm_sq)
         tally.cg_iterations.append(cg.iterations)
