@@ -444,6 +444,7 @@ def plot_errors(report: GradientErrorReport) -> Any:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     figure, (left, right) = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
     by_name: dict[str, list[StepErrors]] = {}
@@ -458,6 +459,7 @@ def plot_errors(report: GradientErrorReport) -> Any:
     right.set_title("||g_j - gb_j|| / ||gb_j||: inner-loop noise", fontsize=9)
     for axis in (left, right):
         axis.set_xlabel("inner step j")
+        axis.xaxis.set_major_locator(MaxNLocator(integer=True))
         axis.set_yscale("symlog", linthresh=1e-3)
         axis.grid(alpha=0.3)
     left.set_ylabel("relative error")
