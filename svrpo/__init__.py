@@ -6,9 +6,9 @@
     policy = svrpo.load_policy("runs/hopper")
     action = policy.act(observation, deterministic=True)
 
-`train`, `load_policy` and the estimator names (`GradientEstimator`, `BatchGradients` and the
-built-in estimators) import torch when first used, not at `import svrpo` (the sampling workers
-import this package and must stay torch-free).
+`train`, `load_policy`, `measure_gradient_error` and the estimator names (`GradientEstimator`,
+`BatchGradients` and the built-in estimators) import torch when first used, not at
+`import svrpo` (the sampling workers import this package and must stay torch-free).
 """
 
 from typing import Any
@@ -19,7 +19,7 @@ _ESTIMATOR_NAMES = ("BatchGradients", "GradientEstimator", "FullGradient", "Mini
                     "SvrgGradient", "SarahGradient", "StormGradient")
 
 __all__ = ["PRESET_NAMES", "SCALES", "Config", "ConfigError", "field_docs", "load_policy", "make_preset",
-           "train", "__version__", *_ESTIMATOR_NAMES]
+           "measure_gradient_error", "train", "__version__", *_ESTIMATOR_NAMES]
 __version__ = "0.1.0"
 
 
@@ -32,6 +32,10 @@ def __getattr__(name: str) -> Any:
         from svrpo.analysis.evaluation import load_policy
 
         return load_policy
+    if name == "measure_gradient_error":  # docs/gradient-error.md
+        from svrpo.analysis.gradient_error import measure_gradient_error
+
+        return measure_gradient_error
     if name in _ESTIMATOR_NAMES:
         from svrpo.core import estimators
 

@@ -267,7 +267,7 @@ class GradientErrorReport:
         out = {key: getattr(self, key) for key in self.__dataclass_fields__ if key != "steps"}
         out["noise_scale"] = asdict(self.noise_scale)
         out["expected_sampling_error"] = self.noise_scale.expected_sampling_error(self.batch_size)
-        out["estimators"] = sorted({record.estimator for record in self.steps})
+        out["estimators"] = list(dict.fromkeys(record.estimator for record in self.steps))  # in replay order
         return out
 
 
