@@ -72,15 +72,15 @@ def draw(policy: GaussianMlpPolicy, size: int, seed: int) -> SurrogateBatch:
         a = mean + torch.exp(log_std) * torch.randn(size, 1, dtype=torch.float64, generator=generator)
         reward = -(a[:, 0] - TARGET * s[:, 0]).pow(2)
         log_prob = policy.log_prob(s, a)
-    return SurrogateBatch(s, a, reward, log_prob, mean, log_std.clone())
+    return SurrogateBatch(s, a, reward, log_prob, mean, log_std.detach().clone())
 
 
 def per_sample_gradients(policy: GaussianMlpPolicy, batch: SurrogateBatch) -> torch.Tensor:
     """(N, 3) grad U_t at w~ by hand: A_t grad log pi(a_t|s_t) (ratio 1), flat_parameters' order."""
     head = policy.mean_net[0]
-    sigma = float(policy.log_std.exp())
+    theta, bias, sigma = (float(p.detach()) for p in (head.weight, head.bias, policy.log_std.exp()))
     s, a, advantage = batch.observations[:, 0], batch.actions[:, 0], batch.advantages
-    z = (a - float(head.weight) * s - float(head.bias)) / sigma
+    z = (a - theta * s - bias) / sigma
     by_parameter = {id(head.weight): advantage * z * s / sigma, id(head.bias): advantage * z / sigma,
                     id(policy.log_std): advantage * (z * z - 1.0)}
     return torch.stack([by_parameter[id(p)] for p in policy.parameters()], dim=1)
