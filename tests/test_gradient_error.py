@@ -34,7 +34,8 @@ from svrpo.core.estimators import SvrgGradient, svrg_gradient
 from svrpo.core.objectives import SurrogateBatch, surrogate
 from svrpo.core.parts import update_parts
 from svrpo.core.streams import RandomStreams
-from svrpo.models.parameters import flat_gradient, set_flat_parameters
+from svrpo.core.update import update_policy
+from svrpo.models.parameters import flat_gradient, flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
 
 TARGET = 0.7
@@ -216,3 +217,18 @@ def test_the_cli_writes_its_files_for_a_tiny_real_run(tmp_path: Path) -> None:
     assert {row["gradient_sampling_squared"] for row in rows if row["step"] == "0"} == {
         repr(summary["batch_sampling_error"])}
     assert (out / "gradient_error.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_observing_the_loop_does_not_change_it() -> None:
+    """The replay ends where the same update without the observer ends, bit for bit (the observer
+    draws no random number and leaves the policy and the estimator alone)."""
+    start = bandit_policy(*SNAPSHOT)
+    batch, reference = draw(start, 512, seed=6), draw(start, 4_000, seed=7)
+    for name in ("svrg", "sarah", "page"):
+        plain, observed = bandit_policy(*SNAPSHOT), bandit_policy(*SNAPSHOT)
+        update_policy(plain, batch, bandit_parts(name), torch.Generator().manual_seed(8),
+                      torch.Generator().manual_seed(0))
+        records = replay_errors(name, observed, batch, reference, 10, bandit_parts(name),
+                                torch.Generator().manual_seed(8))
+        assert len(records) == 5
+        assert torch.equal(flat_parameters(plain), flat_parameters(observed)), name
