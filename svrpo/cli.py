@@ -335,8 +335,6 @@ def _gradient_error(args: argparse.Namespace, extra: list[str]) -> int:
     if len(set(names)) != len(names):
         raise UsageError(f"--estimator names an estimator twice: {','.join(names)}")
     overrides = {name: coerce_field(name, value) for name, value in _parse_overrides(extra).items()}
-    if "seed" in overrides:
-        raise UsageError("give the seed as --seed (it seeds the tool's sampler and mini-batches)")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} is a file; give a directory")
