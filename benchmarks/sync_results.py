@@ -1,15 +1,17 @@
-"""Copy the tables of the regenerated reports into results/RESULTS.md.
+"""Copy the tables of the regenerated reports into the results pages (results/*/README.md).
 
-RESULTS.md shows each experiment's table (results/EXP/table.md) and across-task aggregate
-(results/EXP/aggregate.md) under the experiment's returns figure. After `svrpo plot` has rewritten
-the reports, this replaces, in every section that shows `EXP/returns.png` above the "Previous
-results" part, the first `| task |` table with EXP's table and the first `| preset |` table with
-EXP's aggregate (with its "Left out of the IQM" sentence, when it has one), and each table of
-the outside anchor's report (benchmarks/results/sb3_anchor_1M.md, by benchmarks/anchor_table.py)
-wherever a table with the same leading header cells stands. The prose is left to the reader to
-update; tests/test_docs.py fails while a table row is not a report's.
+Each experiment's page, results/EXP/README.md (linked from results/RESULTS.md), shows the
+experiment's table (results/EXP/table.md) and across-task aggregate (results/EXP/aggregate.md)
+under its returns figure. After `svrpo plot` has rewritten the reports, this replaces, in every
+section of a page that shows `returns.png` (its own folder's) or `EXP/returns.png`, above a
+"Previous results" part, the first `| task |` table with EXP's table and the first `| preset |`
+table with EXP's aggregate (with its "Left out of the IQM" sentence, when it has one), and each
+table of the outside anchor's report (benchmarks/results/sb3_anchor_1M.md, by
+benchmarks/anchor_table.py) wherever a table with the same leading header cells stands. The
+prose is left to the reader to update; tests/test_docs.py fails while a table row is not a
+report's.
 
-    python benchmarks/sync_results.py            # rewrite results/RESULTS.md in place
+    python benchmarks/sync_results.py            # rewrite the pages in place
     python benchmarks/sync_results.py --check    # exit 1 if it would change anything
 """
 
@@ -22,7 +24,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
-FIGURE = re.compile(r"!\[[^\]]*\]\(([\w.-]+)/returns\.png\)")
+FIGURE = re.compile(r"!\[[^\]]*\]\((?:([\w.-]+)/)?returns\.png\)")
 PREVIOUS = "# Previous results"
 LEFT_OUT = "Left out of the IQM"
 ANCHOR = ROOT / "benchmarks" / "results" / "sb3_anchor_1M.md"
@@ -51,7 +53,14 @@ def anchor_tables() -> dict[str, str]:
     return {prefix: table for prefix in ANCHOR_HEADERS for table in tables if table.startswith(prefix)}
 
 
-def sync(text: str) -> str:
+def pages() -> list[Path]:
+    """The results pages: results/RESULTS.md and each experiment's README.md."""
+    return [RESULTS / "RESULTS.md", *sorted(RESULTS.glob("*/README.md"))]
+
+
+def sync(text: str, folder: str | None = None) -> str:
+    """text with its tables replaced by the reports' (folder: the page's experiment folder,
+    which a bare `returns.png` figure names)."""
     head, marker, tail = text.partition(PREVIOUS)
     anchors = anchor_tables()
     lines = head.split("\n")
@@ -62,8 +71,9 @@ def sync(text: str) -> str:
     while index < len(lines):
         line = lines[index]
         figure = FIGURE.search(line)
-        if figure and (RESULTS / figure.group(1) / "table.md").exists():
-            experiment, pending = figure.group(1), {"table.md", "aggregate.md"}
+        named = figure and (figure.group(1) or folder)
+        if named and (RESULTS / named / "table.md").exists():
+            experiment, pending = named, {"table.md", "aggregate.md"}
         anchor = next((prefix for prefix in anchors if line.startswith(prefix)), None)
         if anchor is not None:
             end = index
@@ -102,15 +112,22 @@ def sync(text: str) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="exit 1 if RESULTS.md is out of date")
+    parser.add_argument("--check", action="store_true", help="exit 1 if a page is out of date")
     args = parser.parse_args()
-    path = RESULTS / "RESULTS.md"
-    before = path.read_text()
-    after = sync(before)
+    stale = []
+    for path in pages():
+        before = path.read_text()
+        after = sync(before, None if path.parent == RESULTS else path.parent.name)
+        if after == before:
+            continue
+        stale.append(path)
+        if not args.check:
+            path.write_text(after)
+            print(f"updated: {path}")
     if args.check:
-        sys.exit(0 if after == before else 1)
-    path.write_text(after)
-    print(f"{'updated' if after != before else 'unchanged'}: {path}")
+        for path in stale:
+            print(f"out of date: {path}", file=sys.stderr)
+        sys.exit(1 if stale else 0)
 
 
 if __name__ == "__main__":
