@@ -74,7 +74,8 @@ def test_results_tables_are_the_current_reports_under_their_own_figures() -> Non
 
     done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "sync_results.py"), "--check"],
                           capture_output=True, text=True)
-    assert done.returncode == 0, f"a results page is out of date ({done.stderr.strip()}): run python benchmarks/sync_results.py"
+    assert done.returncode == 0, (f"a results page is out of date ({done.stderr.strip()}): "
+                                  "run python benchmarks/sync_results.py")
 
 
 def test_the_table_check_fails_on_a_page_with_a_stale_row(tmp_path: Path) -> None:
