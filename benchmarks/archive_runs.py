@@ -1,11 +1,21 @@
 """Copy the finished runs of a sweep root into a small archive that can be committed.
 
-A finished run keeps config.json, run.json, progress.csv, train.log and its final checkpoint
-(what `svrpo plot` reads and what `svrpo sweep` needs to see the run as done); TensorBoard events
-and older checkpoints are left out. Copying the archive back into a sweep root
-(`cp -r ARCHIVE/. ROOT/`) lets a later `svrpo sweep` on a fresh machine skip those runs.
+A finished run keeps config.json, run.json, progress.csv and train.log: what a recomputation
+of its reports needs (`svrpo plot`, the aggregate, the experiments' report scripts read only
+these). Its final checkpoint is kept only where asked, with `--checkpoint PATTERN` (a glob on
+the run's path under the root, repeatable), for the runs whose policy a committed report
+evaluates (e.g. benchmarks/heldout_surrogate.py reads figure1-modern's final checkpoints); a
+pattern that matches no finished run is refused before anything is copied. TensorBoard events
+and older checkpoints are always left out. A finished run measured 651,353 bytes archived with
+its checkpoint (figure1-modern/Ant-v5/svrpo/seed0: a 448,626-byte checkpoint) and 194,535
+without it.
+
+Copying the archive back into a sweep root (`cp -r ARCHIVE/. ROOT/`) lets a later `svrpo sweep`
+on a fresh machine skip the runs archived with their final checkpoint: the sweep counts a run
+as done only when that checkpoint is there, so one archived without it is trained again.
 
     python benchmarks/archive_runs.py /work/runs results/runs
+    python benchmarks/archive_runs.py /work/runs results/runs --checkpoint 'figure1-modern/*/trpo/*'
 
 `--partial` archives the unfinished runs instead (their newest readable checkpoint, with the
 same files), so that background runs survive the end of a session on a machine whose run root
@@ -19,6 +29,7 @@ resumes them. A partial archive is replaced whole each time (runs that finished 
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import shutil
 import sys
 from pathlib import Path
@@ -79,28 +90,55 @@ def archive_partial(root: Path, archive: Path) -> int:
     return len(runs)
 
 
+def keeps_checkpoint(relative: Path, patterns: list[str]) -> bool:
+    """Whether the run at `relative` (its path under the root) matches a --checkpoint pattern."""
+    return any(fnmatch.fnmatchcase(relative.as_posix(), pattern) for pattern in patterns)
+
+
+def archive_finished(root: Path, archive: Path, patterns: list[str]) -> tuple[int, int]:
+    """Copy the finished runs of root into archive, the final checkpoint only of those matching
+    a pattern; (runs archived, checkpoints kept)."""
+    copied = kept = 0
+    for run_dir in finished_runs(root):
+        relative = run_dir.relative_to(root)
+        target = archive / relative
+        target.mkdir(parents=True, exist_ok=True)
+        for name in KEPT:
+            if (run_dir / name).is_file():
+                shutil.copy2(run_dir / name, target / name)
+        if keeps_checkpoint(relative, patterns):
+            config = Config.from_json((run_dir / "config.json").read_text())
+            final = checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations)
+            (target / "checkpoints").mkdir(exist_ok=True)
+            shutil.copy2(final, target / "checkpoints" / final.name)
+            kept += 1
+        copied += 1
+    return copied, kept
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("root", type=Path)
     parser.add_argument("archive", type=Path)
     parser.add_argument("--partial", action="store_true", help="archive the unfinished runs (see above)")
+    parser.add_argument("--checkpoint", action="append", default=[], metavar="PATTERN",
+                        help="keep the final checkpoint of the finished runs whose path under ROOT "
+                             "matches this glob (repeatable); by default no checkpoint is kept")
     args = parser.parse_args()
     if args.partial:
+        if args.checkpoint:
+            parser.error("--checkpoint is for finished runs; --partial always keeps the newest checkpoint")
         count = archive_partial(args.root, args.archive)
         print(f"archived {count} unfinished runs of {args.root} in {args.archive}")
         return
-    copied = 0
-    for run_dir in finished_runs(args.root):
-        target = args.archive / run_dir.relative_to(args.root)
-        config = Config.from_json((run_dir / "config.json").read_text())
-        final = checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations)
-        (target / "checkpoints").mkdir(parents=True, exist_ok=True)
-        for name in KEPT:
-            if (run_dir / name).is_file():
-                shutil.copy2(run_dir / name, target / name)
-        shutil.copy2(final, target / "checkpoints" / final.name)
-        copied += 1
-    print(f"archived {copied} finished runs of {args.root} in {args.archive}")
+    runs = [run_dir.relative_to(args.root) for run_dir in finished_runs(args.root)]
+    for pattern in args.checkpoint:
+        if not any(keeps_checkpoint(run, [pattern]) for run in runs):
+            parser.error(f"--checkpoint {pattern!r} matches no finished run under {args.root}; "
+                         "nothing copied")
+    copied, kept = archive_finished(args.root, args.archive, args.checkpoint)
+    print(f"archived {copied} finished runs of {args.root} in {args.archive} "
+          f"({kept} with their final checkpoint)")
 
 
 if __name__ == "__main__":
