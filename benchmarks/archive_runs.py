@@ -4,7 +4,7 @@ A finished run keeps config.json, run.json, progress.csv and train.log: what a r
 of its reports needs (`svrpo plot`, the aggregate, the experiments' report scripts read only
 these). Its final checkpoint is kept only where asked, with `--checkpoint PATTERN` (a glob on
 the run's path under the root, repeatable), for the runs whose policy a committed report
-evaluates (e.g. benchmarks/heldout_surrogate.py reads figure1-modern's final checkpoints); a
+evaluates (e.g. results/heldout-surrogate/heldout_surrogate.py reads figure1-modern's final checkpoints); a
 pattern that matches no finished run is refused before anything is copied. TensorBoard events
 and older checkpoints are always left out. A finished run measured 651,353 bytes archived with
 its checkpoint (figure1-modern/Ant-v5/svrpo/seed0: a 448,626-byte checkpoint) and 194,535

@@ -125,12 +125,13 @@ def _numerics_config(env_id: str) -> Config:
         variance_probe_batches=0, checkpoint_every=1)
 
 
-def load_benchmark(name: str) -> Any:
-    """benchmarks/NAME.py imported as a module (the scripts are not a package)."""
+def load_benchmark(name: str, folder: str = "benchmarks") -> Any:
+    """FOLDER/NAME.py imported as a module (the scripts are not a package): a maintained tool in
+    benchmarks/, or a finished investigation's script beside its results (results/EXP/)."""
     import importlib.util
     import sys
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    path = Path(__file__).resolve().parents[1] / folder / f"{name}.py"
     spec = importlib.util.spec_from_file_location(name, path)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)

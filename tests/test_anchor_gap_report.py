@@ -1,11 +1,11 @@
-"""benchmarks/anchor_gap_report.py: the anchor-gap protocol's reading rules (sections 6 and 10)
+"""results/ant-anchor-gap/anchor_gap_report.py: the anchor-gap protocol's reading rules (sections 6 and 10)
 on hand-made seeds, each threshold from both sides."""
 
 from __future__ import annotations
 
 from tests.helpers import load_benchmark
 
-report = load_benchmark("anchor_gap_report")
+report = load_benchmark("anchor_gap_report", "results/ant-anchor-gap")
 Run = report.anchor_table.Run
 
 

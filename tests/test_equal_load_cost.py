@@ -1,4 +1,5 @@
-"""benchmarks/equal_load_cost.py against cases worked by hand (results/equal-load-cost quotes it)."""
+"""results/equal-load-cost/equal_load_cost.py against cases worked by hand (results/equal-load-cost
+quotes it)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ HEADER = "iteration,wall_time,eval_return,cpu_learner,cpu_workers"
 
 
 def _script() -> ModuleType:
-    return load_benchmark("equal_load_cost")  # type: ignore[no-any-return]
+    return load_benchmark("equal_load_cost", "results/equal-load-cost")  # type: ignore[no-any-return]
 
 
 def _rows(walls: list[float], cpu: list[tuple[float, float]],

@@ -6,7 +6,7 @@ of that mean. results/ant-anchor-gap/PROTOCOL.md (section 10) reads its anchor g
 equivalence: that update is exactly ours with max_kl x d and cg_damping x d. This pins the algebra
 against an independent float64 reference of sb3-contrib's formulation: an explicit Hessian of the
 per-dimension mean KL, a direct solve, its step length, and its line search (KL(new || old) per
-dimension below target_kl and the surrogate improved). benchmarks/update_vs_sb3.py measures the
+dimension below target_kl and the surrogate improved). results/ant-anchor-gap/update_vs_sb3.py measures the
 same against sb3-contrib's own code (results/ant-anchor-gap/update_vs_sb3*.json).
 """
 

@@ -1,4 +1,4 @@
-"""benchmarks/noise_swap.py (the Ant anchor gap's step 3): the std rescaling by hand, std 0 equal
+"""results/ant-anchor-gap/noise_swap.py (the Ant anchor gap's step 3): the std rescaling by hand, std 0 equal
 to the deterministic evaluation, the learned std's own number equal to `own`, common random
 numbers across stds, the summary table by hand, and the command run as a user runs it."""
 
@@ -21,8 +21,9 @@ from svrpo.rundir.training import train
 from svrpo.sampling.envs import make_env
 from tests.helpers import load_benchmark
 
-noise_swap = load_benchmark("noise_swap")
+noise_swap = load_benchmark("noise_swap", "results/ant-anchor-gap")
 ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "results" / "ant-anchor-gap" / "noise_swap.py"
 
 
 @pytest.fixture(scope="module")
@@ -108,7 +109,7 @@ def test_summary_table_by_hand() -> None:
 
 def test_command_writes_json_and_table(run_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "swap.json"
-    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "noise_swap.py"), str(run_dir),
+    done = subprocess.run([sys.executable, str(SCRIPT), str(run_dir),
                            "--stds", "own", "0.1", "0", "--episodes", "2", "--out", str(out)],
                           capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
@@ -116,6 +117,6 @@ def test_command_writes_json_and_table(run_dir: Path, tmp_path: Path) -> None:
     assert data["stds"] == ["own", "0.1", "0"] and len(data["runs"]) == 1
     assert len(data["runs"][0]["stds"]["0.1"]["returns"]) == 2
     assert "| 0.1 |" in out.with_suffix(".md").read_text()
-    bad = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "noise_swap.py"), str(run_dir),
+    bad = subprocess.run([sys.executable, str(SCRIPT), str(run_dir),
                           "--stds", "-1", "--out", str(out)], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "number >= 0" in bad.stderr

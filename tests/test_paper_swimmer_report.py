@@ -1,6 +1,6 @@
-"""benchmarks/paper_swimmer_report.py: the paper-scale Swimmer protocol's section-8 tests on
-hand-made runs (each threshold from both sides), whole seeds only, and Welch's test against its
-formula."""
+"""results/figure1-paper-swimmer/paper_swimmer_report.py: the paper-scale Swimmer protocol's
+section-8 tests on hand-made runs (each threshold from both sides), whole seeds only, and Welch's
+test against its formula."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from scipy import stats
 
 from tests.helpers import load_benchmark
 
-report = load_benchmark("paper_swimmer_report")
+report = load_benchmark("paper_swimmer_report", "results/figure1-paper-swimmer")
 ROOT = Path(__file__).resolve().parents[1]
 STEPS, ITERATIONS = 100, 10
 
@@ -119,7 +119,7 @@ def test_welch_matches_its_formula() -> None:
 
 def test_the_script_writes_the_report_as_a_user_runs_it(runs: Path, tmp_path: Path) -> None:
     out = tmp_path / "report.md"
-    script = str(ROOT / "benchmarks" / "paper_swimmer_report.py")
+    script = str(ROOT / "results" / "figure1-paper-swimmer" / "paper_swimmer_report.py")
     result = subprocess.run([sys.executable, script, "--runs", str(runs), "--out", str(out)],
                             capture_output=True, text=True, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
@@ -172,8 +172,9 @@ def test_headline_resampled_counts_resamples_whose_mean_reaches_within_40_percen
 
 def test_the_report_has_the_explanatory_part_per_scale_and_seed(runs: Path, tmp_path: Path) -> None:
     out = tmp_path / "report.md"
-    subprocess.run([sys.executable, str(ROOT / "benchmarks" / "paper_swimmer_report.py"), "--runs", str(runs),
-                    "--out", str(out)], check=True, capture_output=True, timeout=120)
+    script = ROOT / "results" / "figure1-paper-swimmer" / "paper_swimmer_report.py"
+    subprocess.run([sys.executable, str(script), "--runs", str(runs), "--out", str(out)], check=True,
+                   capture_output=True, timeout=120)
     text = out.read_text()
     explanatory = text[text.index("## Explanatory"):]
     # trpo_returns: smoothed over a window of 1 (10 iterations), seed-mean final 101, 90% of it

@@ -1,4 +1,4 @@
-"""benchmarks/swimmer_gap.py's window and evaluation against cases worked by hand."""
+"""results/swimmer-anchor-gap/swimmer_gap.py's window and evaluation against cases worked by hand."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _script() -> ModuleType:
-    return load_benchmark("swimmer_gap")  # type: ignore[no-any-return]
+    return load_benchmark("swimmer_gap", "results/swimmer-anchor-gap")  # type: ignore[no-any-return]
 
 
 def _rows(returns: list[float], evals: dict[int, float]) -> list[dict[str, float]]:

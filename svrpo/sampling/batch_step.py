@@ -41,7 +41,8 @@ STEPPER_BY_TASK: dict[str, Literal["vector", "batch"]] = {
     "HalfCheetah-v5": "batch",  # 1.38x
     "Ant-v5": "vector",  # 0.95x: the per-env MjData copy for cfrc_ext eats the gain
     "Humanoid-v5": "vector",  # 1.17x median, within its repeat-to-repeat spread
-    # End to end (BENCHMARKS.md "BatchStep in the production sampler", results/batch_step_sampler*.json):
+    # End to end (BENCHMARKS.md "BatchStep in the production sampler",
+    # benchmarks/results/batch_step_sampler*.json):
     # the 2 x 8 Sampler takes 0.89-1.00x the wall and 0.91-0.98x the CPU time per step, bit-exact.
 }
 """The stepper "auto" picks per task id; any task not listed (non-MuJoCo, other versions, a

@@ -1,6 +1,7 @@
 """The anchor-gap diagnosis's training-run steps, read by its protocol's rules.
 
-    python benchmarks/anchor_gap_report.py [--runs results/runs] [--out results/ant-anchor-gap/report.md]
+    python results/ant-anchor-gap/anchor_gap_report.py [--runs results/runs] \
+        [--out results/ant-anchor-gap/report.md]
 
 results/ant-anchor-gap/PROTOCOL.md: step 2 (one environment + orthogonal initialisation, Ant-v5,
 seeds 0-2; section 6's rule), step 5 (max_kl and cg_damping times the action dimension, i.e.
@@ -25,8 +26,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+# the maintained readers it imports live in benchmarks/
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import anchor_table  # noqa: E402
 
 from svrpo.experiments.table import t_interval  # noqa: E402
@@ -140,7 +142,7 @@ def reading(rule: str, variant: Sequence[anchor_table.Run], ours: Sequence[ancho
 def render(runs: Path, reports: Sequence[dict[str, Any]]) -> str:
     theirs_by_task = anchor_table.sb3_runs(reports)
     lines = ["# Anchor gap: the diagnosis's training runs, read by the protocol's rules", "",
-             "`python benchmarks/anchor_gap_report.py` (results/ant-anchor-gap/PROTOCOL.md, "
+             "`python results/ant-anchor-gap/anchor_gap_report.py` (results/ant-anchor-gap/PROTOCOL.md, "
              "sections 6, 10 and 11). Seed mean [95% Student-t interval]; action std: the mean over "
              "the last 100k steps of progress.csv's `action_std` (the policy's std, mean over "
              "dimensions); Welch's two-sided test of the variant against each comparison.", ""]

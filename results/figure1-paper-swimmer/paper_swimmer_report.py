@@ -1,6 +1,6 @@
 """The paper-scale Swimmer experiment (issue 24), read by its protocol's rules.
 
-    python benchmarks/paper_swimmer_report.py [--runs results/runs]
+    python results/figure1-paper-swimmer/paper_swimmer_report.py [--runs results/runs]
         [--out results/figure1-paper-swimmer/report.md]
 
 results/figure1-paper-swimmer/PROTOCOL.md: section 5 names the statistics, section 8 the two
@@ -41,8 +41,9 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+# the maintained readers it imports live in benchmarks/
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import accepted_steps  # noqa: E402
 
 from svrpo.analysis.plotting import RunCurve, load_curve  # noqa: E402
@@ -232,8 +233,9 @@ def _cell(value: float, digits: int = 0) -> str:
 
 def render(scales: Sequence[Scale]) -> list[str]:
     lines = ["# The paper's Swimmer claim at the paper's own scale (issue 24)", "",
-             "`python benchmarks/paper_swimmer_report.py` (its docstring says what is computed; the rules "
-             "are results/figure1-paper-swimmer/PROTOCOL.md section 8, fixed before the runs).", ""]
+             "`python results/figure1-paper-swimmer/paper_swimmer_report.py` (its docstring says what is "
+             "computed; the rules are results/figure1-paper-swimmer/PROTOCOL.md section 8, fixed before "
+             "the runs).", ""]
     for scale in scales:
         planned = PLANNED_SEEDS.get(scale.experiment)
         note = "" if planned is None or len(scale.seeds) >= planned else (

@@ -1,6 +1,6 @@
 """Our trained policies run with another exploration noise: stochastic returns at a chosen action std.
 
-    python benchmarks/noise_swap.py RUN_DIR [RUN_DIR ...] --stds own 0.27 0.214 0.15 0 \
+    python results/ant-anchor-gap/noise_swap.py RUN_DIR [RUN_DIR ...] --stds own 0.27 0.214 0.15 0 \
         --episodes 20 --out results/ant-anchor-gap/noise_swap.json
 
 Step 3 of the Ant anchor-gap diagnosis (results/ant-anchor-gap/PROTOCOL.md). Each run directory's

@@ -1,8 +1,8 @@
 """Does an update fit its batch's noise? Surrogate gain on the batch it used vs on a held-out one.
 
-    python benchmarks/heldout_surrogate.py [--runs runs/figure1-modern] [--configs ROOT]
+    python results/heldout-surrogate/heldout_surrogate.py [--runs runs/figure1-modern] [--configs ROOT]
         [--tasks Ant-v5,HalfCheetah-v5] [--sources trpo,svrpo] [--seeds 0,1,2] [--pairs 8]
-        [--out benchmarks/results/heldout_surrogate]
+        [--out results/heldout-surrogate/heldout_surrogate]
 
 From the latest checkpoint of each source run (TASK/PRESET/seedS under --runs), draw `pairs`
 pairs of batches (A, B), each N steps with that policy (B continues A's episodes, the way the
@@ -26,7 +26,7 @@ deterministic for a config, so
 
 ends in the sweep run's own state after 97 iterations (its progress.csv is the sweep run's first
 97 rows except the timing and evaluation columns: checked for all 12 sources of the 200k file);
-then pass --runs ROOT --configs results/runs/figure1-modern. benchmarks/results/
+then pass --runs ROOT --configs results/runs/figure1-modern. results/heldout-surrogate/
 heldout_surrogate_200k.md was made that way (ROOT = /work/early/runs),
 heldout_surrogate_final.md from the archived final checkpoints (--runs results/runs/figure1-modern).
 
@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from svrpo.analysis.plotting import mean_and_ci  # noqa: E402
 from svrpo.config import Config  # noqa: E402
 from svrpo.core.algorithm import build_run, snapshot_of, surrogate_batch  # noqa: E402
@@ -126,7 +126,7 @@ def write_markdown(rows: list[Row], path: Path, command: str) -> None:
     lines = [
         "# Surrogate gain on the update's own batch vs on a held-out batch",
         "",
-        f"`{command}` (benchmarks/heldout_surrogate.py's docstring says what is measured).",
+        f"`{command}` (results/heldout-surrogate/heldout_surrogate.py's docstring says what is measured).",
         "Mean over (source checkpoint, batch pair) with a 95% bootstrap interval; the ratio",
         "surrogate in units of standardised advantage; `held-out - trpo` is the paired",
         "difference to trpo's update on the same batches.",
@@ -171,7 +171,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="presets whose final checkpoints start the updates")
     parser.add_argument("--seeds", default="0,1,2")
     parser.add_argument("--pairs", type=int, default=8, help="batch pairs per source checkpoint")
-    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "heldout_surrogate")
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "heldout_surrogate")
     args = parser.parse_args(argv)
     rows: list[Row] = []
     configs = args.configs or args.runs
@@ -185,7 +185,8 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"{run_dir}: done", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(rows, indent=1))
-    command = "python benchmarks/heldout_surrogate.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    given = argv if argv is not None else sys.argv[1:]
+    command = "python results/heldout-surrogate/heldout_surrogate.py " + " ".join(given)
     write_markdown(rows, args.out.with_suffix(".md"), command.strip())
 
 

@@ -1,6 +1,6 @@
 """One TRPO update on the same batch: ours against sb3-contrib's, inside sb3-contrib's own training.
 
-    PYTHONPATH=. /work/sb3venv/bin/python benchmarks/update_vs_sb3.py --env Ant-v5 --seed 0 \
+    PYTHONPATH=. /work/sb3venv/bin/python results/ant-anchor-gap/update_vs_sb3.py --env Ant-v5 --seed 0 \
         --iterations 60 --out results/ant-anchor-gap/update_vs_sb3.json
 
 With `--max-kl-per-dimension` our max_kl and cg_damping are multiplied by the action dimension,

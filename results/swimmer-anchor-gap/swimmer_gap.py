@@ -1,6 +1,7 @@
 """The Swimmer anchor-gap diagnosis (results/swimmer-anchor-gap/PROTOCOL.md) as a table.
 
-    python benchmarks/swimmer_gap.py [--runs results/runs] [--out results/swimmer-anchor-gap/report.md]
+    python results/swimmer-anchor-gap/swimmer_gap.py [--runs results/runs] \
+        [--out results/swimmer-anchor-gap/report.md]
 
 Per variant: each seed's mean training return over iterations 196-245 (400-500k steps) and its
 deterministic evaluation after iteration 245 (the last eval_return at or before it), the seed
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from svrpo.experiments.table import t_interval  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 
@@ -42,7 +43,7 @@ MORE: dict[str, list[tuple[str, tuple[int, ...]]]] = {
     CLOSEST: [("swimmer-gap-one-env-orthogonal-modern", FIRST_SEEDS + MORE_SEEDS)],
 }
 """Seeds 0-7 of the closest setup and of the unchanged trpo (the last dated section)."""
-SB3 = Path(__file__).parent / "results" / "sb3_anchor_1M_more.json"
+SB3 = Path(__file__).resolve().parents[2] / "benchmarks" / "results" / "sb3_anchor_1M_more.json"
 
 
 def window_return(rows: Sequence[Mapping[str, float]], first: int = FIRST, last: int = LAST) -> float:

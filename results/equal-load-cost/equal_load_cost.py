@@ -1,7 +1,7 @@
 """The cost of svrpo against trpo at equal load, and the committed wall-clock columns re-read
 through it (results/equal-load-cost/PROTOCOL.md).
 
-    python benchmarks/equal_load_cost.py [--runs results/runs/equal-load-cost-modern]
+    python results/equal-load-cost/equal_load_cost.py [--runs results/runs/equal-load-cost-modern]
         [--committed results/runs/figure1-modern] [--table results/figure1-modern/table.csv]
         [--out results/equal-load-cost/report.md]
 
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from svrpo.experiments.table import t_interval  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 
