@@ -1,4 +1,4 @@
-"""benchmarks/accepted_steps.py against a case worked by hand (RESULTS.md quotes its numbers)."""
+"""results/accepted-steps/accepted_steps.py against a case worked by hand (RESULTS.md quotes its numbers)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from tests.helpers import load_benchmark
 
 
 def _script() -> ModuleType:
-    return load_benchmark("accepted_steps")
+    return load_benchmark("accepted_steps", "results/accepted-steps")
 
 
 def _rows(accepted: list[float], kl: list[float]) -> list[dict[str, float]]:

@@ -67,7 +67,7 @@ def _committed_wall() -> str:
 
 
 def _accepted_modern_svrpo() -> str:
-    rows = _cells(ROOT / "benchmarks/results/accepted_steps.md", "| experiment |")
+    rows = _cells(ROOT / "results/accepted-steps/accepted_steps.md", "| experiment |")
     accepted = [float(row[4]) for row in rows if row[0] == "figure1-modern" and row[2] == "svrpo"]
     assert len(accepted) == 6
     return f"{min(accepted):.1f}-{max(accepted):.1f}"

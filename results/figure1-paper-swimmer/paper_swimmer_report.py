@@ -17,7 +17,8 @@ The claim holds at a scale when both hold. Only whole seeds count (section 3): a
 when every preset's run of it has finished its steps, so an unfinished experiment reports its
 complete seeds of all three presets and says how many. Beside the tests (section 5): the final
 deterministic evaluation, CPU seconds, the variance probe and the accepted inner steps per
-iteration (benchmarks/accepted_steps.py's means), which say why the scales differ, if they do.
+iteration (results/accepted-steps/accepted_steps.py's means), which say why the scales differ,
+if they do.
 
 An explanatory part, added after the five paper-scale seeds were read (it decides nothing; the
 verdicts above are section 8's): how far TRPO's own seed-mean curve is from flat (the share of
@@ -41,8 +42,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-# the maintained readers it imports live in benchmarks/
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+# accepted_steps, the reader of accepted inner steps, lives beside its own report
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "accepted-steps"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import accepted_steps  # noqa: E402
 

@@ -97,7 +97,7 @@ def _tanh_in_place(values: torch.Tensor) -> torch.Tensor:
     """tanh, in place, through NumPy on CPU.
 
     This torch build's CPU tanh is not vectorised (sigmoid and exp are): on a 50,000 x 64
-    float32 tensor it took 6.7x as long as NumPy's SIMD tanh (benchmarks/update_pieces.py). The
+    float32 tensor it took 6.7x as long as NumPy's SIMD tanh (results/update-cost/update_pieces.py). The
     two agree to one ulp; the line search and the Fisher product read values from this path
     only, so every comparison is between numbers computed the same way.
     """

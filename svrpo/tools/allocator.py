@@ -5,7 +5,7 @@ fresh pages from the kernel and unmaps them on free, and trims the top of the he
 threshold. The update allocates and frees the same large activation tensors hundreds of times
 (every line-search trial, gradient and Fisher product): at N = 200,000 one (N, 64) float32
 activation is 51 MB, and each trial paid ~25,000 minor page faults and each surrogate gradient
-~100,000 (`python benchmarks/update_growth.py`, BENCHMARKS.md section 4). That made the update
+~100,000 (`python results/update-cost/update_growth.py`, BENCHMARKS.md section 4). That made the update
 grow faster than N. Raising both thresholds keeps those pages in the heap for reuse.
 
 Results are unchanged: where a buffer lives does not change what is computed into it (torch

@@ -39,7 +39,7 @@ def fisher_vector_product(
     J_s the Jacobian of the mean network at state s. The product is computed as J^T (P (J v)):
     a forward-mode pass then a backward pass through the MLP, both reusing the activations
     computed once here, so a CG iteration costs four small matrix products per layer instead
-    of a double-backward pass through the KL graph (benchmarks/update_pieces.py times both).
+    of a double-backward pass through the KL graph (results/update-cost/update_pieces.py times both).
     Pass a random subset of the batch's observations to sub-sample F (ratio nu).
     """
     layers = _linear_layers(policy)

@@ -12,7 +12,7 @@ svrpo.tools.allocator.keep_freed_memory ("keep", what training does), alternatel
    forward + backward of the surrogate, on n = 5,000 ... 200,000 rows. A per-row cost that rises
    with n means the kernel itself gets dearer per sample, not that more work is done.
 
-    python benchmarks/update_growth.py            # about 10 minutes on 2 cores
+    python results/update-cost/update_growth.py            # about 10 minutes on 2 cores
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Any
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from a checkout, uninstalled
 
 SIZES = (50_000, 200_000)
 KERNEL_ROWS = (5_000, 20_000, 50_000, 100_000, 200_000)
@@ -117,7 +117,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--one", nargs=2, metavar=("N|kernel", "MODE"), help=argparse.SUPPRESS)
     parser.add_argument("--kernel-repeats", type=int, default=15)
-    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "update_growth.json")
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "update_growth.json")
     args = parser.parse_args()
     if args.one:
         _set_mode(args.one[1])

@@ -5,17 +5,17 @@ Two measurements, both with KL anchored at the sampling policy (the presets' set
 * ``same-batches``: both rules update from the same batch, policy and generator states
   (svrpo.tools.bench.update_breakdown, after `--warmup-iterations` iterations so the policy has moved),
   at laptop scale on Hopper-v5 and Walker2d-v5: surrogate gain, inner steps run and accepted,
-  line-search trials and update time. Writes benchmarks/results/inner_stop_same_batches.json.
-* ``learning``: reads the runs of the two sweeps benchmarks/inner_stop/{all,failed_search}.yaml
+  line-search trials and update time. Writes results/inner-stop/inner_stop_same_batches.json.
+* ``learning``: reads the runs of the two sweeps results/inner-stop/{all,failed_search}.yaml
   (svrpo, laptop scale, Hopper-v5 and Walker2d-v5, 5 seeds, 1M steps each; run them first with
-  ``svrpo sweep benchmarks/inner_stop/all.yaml --root runs`` and the same for failed_search.yaml)
+  ``svrpo sweep results/inner-stop/all.yaml --root runs`` and the same for failed_search.yaml)
   and tabulates, per task and rule, the final return (mean over seeds of the mean training
   return over the last 10% of iterations, 95% bootstrap CI), the mean inner steps run and
   accepted per iteration, the mean update time per iteration and the run's wall time.
-  Writes benchmarks/results/inner_stop_learning.{json,md}.
+  Writes results/inner-stop/inner_stop_learning.{json,md}.
 
-    python benchmarks/inner_stop.py same-batches --repeats 3
-    python benchmarks/inner_stop.py learning --root runs
+    python results/inner-stop/inner_stop.py same-batches --repeats 3
+    python results/inner-stop/inner_stop.py learning --root runs
 """
 
 from __future__ import annotations
@@ -29,14 +29,14 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from a checkout, uninstalled
 
 from svrpo.analysis.plotting import load_curve, mean_and_ci  # noqa: E402
 from svrpo.experiments.table import smoothed_seeds  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 from svrpo.tools.bench import machine_info, update_breakdown  # noqa: E402
 
-RESULTS = Path(__file__).parent / "results"
+RESULTS = Path(__file__).parent
 TASKS = ("Hopper-v5", "Walker2d-v5")
 RULES = ("all", "failed_search")
 VARIANTS = {"failed_search": "svrpo", "all": "svrpo_all_inner_steps"}  # update_breakdown's names

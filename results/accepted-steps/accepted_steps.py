@@ -1,7 +1,7 @@
 """How many of its J inner steps each preset accepted per iteration, from the runs' progress.csv.
 
-    python benchmarks/accepted_steps.py [--runs results/runs] [--experiments figure1-laptop,figure1-modern]
-        [--out benchmarks/results/accepted_steps.md]
+    python results/accepted-steps/accepted_steps.py [--runs results/runs] \
+        [--experiments figure1-laptop,figure1-modern] [--out results/accepted-steps/accepted_steps.md]
 
 Per experiment, task and preset, over every iteration of every seed: the mean number of accepted
 inner steps (`inner_steps_accepted`), the share of iterations that accepted two or more, the
@@ -17,7 +17,7 @@ import statistics
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from svrpo.rundir.logging import read_progress  # noqa: E402
 
 PRESETS = ("svrpo", "svrpo-loglik", "trpo")
@@ -75,10 +75,10 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=Path, default=Path("results/runs"))
     parser.add_argument("--experiments", default="figure1-laptop,figure1-modern")
-    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "accepted_steps.md")
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "accepted_steps.md")
     args = parser.parse_args(argv)
     lines = ["# Accepted inner steps per iteration", "",
-             "`python benchmarks/accepted_steps.py` (its docstring says what is measured).", "",
+             "`python results/accepted-steps/accepted_steps.py` (its docstring says what is measured).", "",
              *table(args.runs, args.experiments.split(",")), ""]
     args.out.write_text("\n".join(lines))
     print("\n".join(lines))

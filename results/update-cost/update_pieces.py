@@ -9,7 +9,7 @@ Pieces, at Hopper's sizes with a (64, 64) policy, torch on 1 thread (the config 
 * tanh on a 50,000 x 64 float32 tensor: torch against NumPy.
 Each figure: median over `--repeats` of (median of `--inner` calls); ratio = before / after.
 
-    python benchmarks/update_pieces.py
+    python results/update-cost/update_pieces.py
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from a checkout, uninstalled
 
 from svrpo.core.objectives import SurrogateBatch, mean_kl_from, old_log_prob, surrogate  # noqa: E402
 from svrpo.core.update import FullBatchEvaluator  # noqa: E402
@@ -66,7 +66,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--inner", type=int, default=5)
-    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "update_pieces.json")
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "update_pieces.json")
     args = parser.parse_args()
     machine = machine_info()
     torch.set_num_threads(1)
