@@ -4,7 +4,7 @@ Run with a Python that has envpool (kept out of the project's environment; it ne
 
     python3 -m venv /work/envpoolvenv
     /work/envpoolvenv/bin/pip install envpool "gymnasium[mujoco]"
-    /work/envpoolvenv/bin/python benchmarks/envpool_check.py
+    /work/envpoolvenv/bin/python results/envpool-check/envpool_check.py
 
 Agreement: EnvPool steps one env with uniform random actions; before every step its state is
 copied into a Gymnasium env (qpos = [x_position from info, observation positions], qvel =
@@ -121,7 +121,7 @@ def main() -> None:
     parser.add_argument("--envs", nargs="+", default=["Hopper-v5", "HalfCheetah-v5"])
     parser.add_argument("--steps", type=int, default=20_000)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "envpool_check.json")
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "envpool_check.json")
     args = parser.parse_args()
     report: dict[str, Any] = {
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
