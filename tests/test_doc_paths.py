@@ -11,10 +11,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TOP = ("benchmarks", "results", "tests", "svrpo", "docs", "examples", ".ci")
-PATH = re.compile(rf"(?<![\w./$~-])((?:{'|'.join(re.escape(top) for top in TOP)})/[\w./*{{}},+-]*)")
-PLACEHOLDER = re.compile(r"[A-Z]{3,}|\{[^}]*\}$|\.\.\.")
-"""A quoted path with a placeholder in capitals (results/EXP/, ROOT/TASK) or an ellipsis names a
-family of files, not one file."""
+PATH = re.compile(rf"(?<![\w./$~-])((?:{'|'.join(re.escape(top) for top in TOP)})/[\w./*{{}},+<>-]*)")
+PLACEHOLDER = re.compile(r"[A-Z]{3,}|\{[^}]*\}$|\.\.\.|<")
+"""A quoted path with a placeholder in capitals (results/EXP/, ROOT/TASK), in angle brackets
+(raw/<T>/seed<k>) or an ellipsis names a family of files, not one file."""
 
 
 def _tracked(suffix: str) -> list[Path]:
@@ -88,3 +88,4 @@ def test_the_check_sees_a_moved_script() -> None:
         "results/heldout-surrogate/heldout_surrogate_swimmer_paper.md",
         "results/heldout-surrogate/heldout_surrogate_swimmer_laptop.md"}
     assert quoted_paths("results/EXP/table.md and ROOT/TASK") == set()
+    assert quoted_paths("results/gradient-error/raw/<T>/seed<k>/") == set()
