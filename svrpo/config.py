@@ -24,7 +24,7 @@ Surrogate = Literal["ratio", "loglik"]
 KlAnchor = Literal["sampling", "iterate", "budgeted"]
 InnerStop = Literal["all", "failed_search"]
 BaselineKind = Literal["linear", "mlp"]
-Scale = Literal["paper", "laptop", "modern"]
+Scale = Literal["paper", "laptop", "modern", "zoo"]
 WeightInit = Literal["torch", "orthogonal"]
 
 
@@ -97,6 +97,11 @@ class Config:
     max_kl: float = 0.01
     """delta: bound on the mean KL(anchor || new) accepted by the line search (with kl_anchor
     `budgeted`: the iteration's total budget of KL from the sampling policy)."""
+    kl_per_action_dimension: bool = False
+    """Measure the trust region's KL as sb3-contrib does: its mean over action dimensions d (the
+    summed KL / d), so max_kl, kl_step and cg_damping apply to the Hessian F / d of that mean:
+    (F / d + cg_damping I) s = g. False: the KL summed over dimensions (TRPO's, rllab's). The
+    logged mean_kl is in the same units as max_kl (DESIGN-NOTES 22)."""
     kl_step: float | None = None
     """Per-step KL radius of kl_anchor `budgeted` (ignored otherwise). None: max_kl / J^1.5, the
     rule under which J nearly parallel steps spend about the whole budget (measured: the steps
@@ -131,6 +136,12 @@ class Config:
     """Mini-batch size of the `mlp` value-function fit."""
     normalize_observations: bool = False
     """Normalise observations with running mean/std (frozen during an iteration's sampling)."""
+    normalize_rewards: bool = False
+    """Scale rewards as stable-baselines3's VecNormalize does (norm_reward): each environment keeps
+    a discounted return R <- gamma R + r (reset at every episode end), its running variance is
+    updated with the environments' R at every step, and r becomes clip(r / sqrt(var + 1e-8), +-10)
+    (svrpo/models/normalization.RewardNormalizer). Advantages and the critic see scaled rewards;
+    returns and evaluations stay raw."""
     max_episode_steps: int | None = None
     """Horizon: episodes are truncated (and bootstrapped) after this many steps. None: the task's
     registered time limit (1000 on the six paper tasks), or 1000 for a task that registers none."""
@@ -366,7 +377,7 @@ _DEEP_TASKS = ("Ant", "Humanoid")
 
 PRESET_NAMES = ("trpo", "svrpo", "svrpo-loglik", "svrpo-sgd", "svrpo-identity", "svrpo-sarah",
                 "svrpo-storm", "svrpo-page", "svrpo-budgeted", "svrpg", "srvrpg", "stormpg", "svrpg-sgd")
-SCALES: tuple[Scale, ...] = ("paper", "laptop", "modern")
+SCALES: tuple[Scale, ...] = ("paper", "laptop", "modern", "zoo")
 
 # The ablation field of each preset relative to `svrpo`.
 _ABLATIONS: dict[str, dict[str, Any]] = {
@@ -398,6 +409,8 @@ def _scale_fields(scale: Scale, env_id: str) -> dict[str, Any]:
     family = _task_family(env_id)
     if scale == "modern":
         return dict(MODERN_FIELDS)
+    if scale == "zoo":
+        return {**ZOO_FIELDS, **ZOO_TASK_FIELDS.get(family, {})}
     if scale == "paper":
         m, j, iterations = PAPER_INNER.get(family, (5000, 20, 1000))
         return {
@@ -439,14 +452,42 @@ J = 8, so that m J = 2N (the laptop scale's rule), and nu = 1 (sb3-contrib's uns
 as TRPO's here): the SVRPO presets differ from TRPO only in the estimator and the inner loop."""
 
 
+# The zoo scale: rl-baselines3-zoo's tuned MuJoCo TRPO (hyperparams/trpo.yml at DLR-RM/rl-baselines3-zoo
+# 22e3ff2450fd92033f7f032915e1f64894a09584, the `mujoco-defaults` anchor and its per-task overrides) on
+# sb3-contrib's TRPO (0ca7fdd8d1150bd3a48b86016a85db036efc3b6d), key by key in docs/zoo-trpo.md.
+ZOO_FIELDS: dict[str, Any] = {
+    # n_envs 2 x n_steps 1024, in-process (W = 0: one process per run); n_timesteps 1e6 ->
+    # 489 rollouts of 2,048 (sb3 collects whole rollouts until it reaches 1e6: 1,001,472 steps).
+    "batch_size": 2048, "num_workers": 0, "envs_per_worker": 2, "total_steps": 489 * 2048,
+    "stagger_first_episodes": False,  # sb3's environments start together
+    "gamma": 0.99, "gae_lambda": 0.95, "normalize_advantages": True,
+    "baseline": "mlp", "baseline_hidden_sizes": (64, 64), "baseline_lr": 1e-3,  # learning_rate 1e-3
+    "baseline_epochs": 20, "baseline_minibatch_size": 128,  # n_critic_updates 20, batch_size 128
+    "normalize_observations": True, "normalize_rewards": True,  # normalize: true (VecNormalize)
+    "hidden_sizes": (64, 64), "init_log_std": 0.0, "weight_init": "orthogonal",  # MlpPolicy
+    "kl_per_action_dimension": True, "max_kl": 0.01, "cg_damping": 0.1,  # target_kl, cg_damping
+    "cg_iters": 25, "fisher_subsample": 1.0,  # cg_max_steps 25, sub_sampling_factor 1
+    "backtrack_ratio": 0.8, "max_backtracks": 10,  # line_search_shrinking_factor, _max_iter
+    "eval_every": 50,
+}
+ZOO_TASK_FIELDS: dict[str, dict[str, Any]] = {
+    "HalfCheetah": {"max_kl": 0.04},  # target_kl: 0.04
+    "Swimmer": {"gamma": 0.9999},  # gamma: 0.9999 (VecNormalize's gamma follows it)
+    "Humanoid": {"total_steps": 977 * 2048},  # n_timesteps 2e6
+}
+"""rl-zoo's per-task overrides of its MuJoCo defaults (task family -> fields)."""
+
+
 def make_preset(name: str, env_id: str = "Hopper-v5", scale: Scale = "modern") -> Config:
     """The named preset for a task and scale, before any command-line overrides.
 
     The default scale is `modern` (sb3-contrib's TRPO settings: an MLP critic, GAE 0.95,
     observation normalisation; max_kl 0.01 on the summed KL, where sb3-contrib's 0.01 bounds the
-    per-dimension mean), which learns on tasks nobody tuned for; `laptop` and `paper`
-    are the paper's 2017 settings (a linear baseline, Monte-Carlo returns) at N = 5,000 and
-    N = 50,000, one argument away."""
+    per-dimension mean), which learns on tasks nobody tuned for; `zoo` is rl-baselines3-zoo's tuned
+    MuJoCo TRPO (its KL per action dimension, VecNormalize's reward scaling, 2 x 1024 steps, 20
+    critic epochs, CG 25, orthogonal initialisation; docs/zoo-trpo.md), with the SVRPO presets'
+    (m, J, nu) by the modern scale's rule; `laptop` and `paper` are the paper's 2017 settings (a
+    linear baseline, Monte-Carlo returns) at N = 5,000 and N = 50,000, one argument away."""
     if name not in PRESET_NAMES:
         import difflib
 
@@ -456,8 +497,9 @@ def make_preset(name: str, env_id: str = "Hopper-v5", scale: Scale = "modern") -
     if scale not in SCALES:
         raise ConfigError(f"unknown scale '{scale}'; choose from {', '.join(SCALES)}")
     fields: dict[str, Any] = {"env_id": env_id, **_scale_fields(scale, env_id)}
-    if scale == "modern":
-        fields.update(MODERN_BACKTRACKING)
+    if scale in ("modern", "zoo"):
+        if scale == "modern":
+            fields.update(MODERN_BACKTRACKING)
         if name == "trpo":
             fields.update(estimator="full", inner_steps=1, fisher_subsample=1.0)
         else:

@@ -1,4 +1,5 @@
-"""sb3-contrib's TRPO trust region is ours with max_kl and cg_damping times the action dimension.
+"""sb3-contrib's TRPO trust region is ours with kl_per_action_dimension, or with max_kl and
+cg_damping times the action dimension.
 
 sb3-contrib measures a diagonal Gaussian's KL per action dimension and averages over rows *and*
 dimensions, so its target_kl bounds (summed KL) / act_dim and its damping is added to the Hessian
@@ -16,7 +17,7 @@ import torch
 
 from svrpo.config import make_preset
 from svrpo.core.parts import update_parts
-from svrpo.core.update import update_policy
+from svrpo.core.update import UpdateStats, update_policy
 from svrpo.models.parameters import flat_parameters
 from tests.test_update_reference import (
     ACT_DIM,
@@ -67,17 +68,27 @@ def sb3_style_update(start: torch.Tensor, rows: Rows) -> tuple[torch.Tensor, int
     return start, TRIALS
 
 
-def ours(start_seed: int, rows: Rows, per_dimension: bool) -> torch.Tensor:
-    scale = ACT_DIM if per_dimension else 1
-    config = make_preset("trpo", "Hopper-v5", "laptop").replace(
+def ours(start_seed: int, rows: Rows, per_dimension: bool, field: bool = False) -> torch.Tensor:
+    """Our trpo update: sb3-contrib's numbers times d (per_dimension), or as they are with the
+    kl_per_action_dimension field (field)."""
+    return ours_with_stats(start_seed, rows, per_dimension, field)[0]
+
+
+def ours_with_stats(start_seed: int, rows: Rows, per_dimension: bool, field: bool = False,
+                    preset: str = "trpo") -> tuple[torch.Tensor, UpdateStats]:
+    scale = ACT_DIM if per_dimension and not field else 1
+    # svrpo: one inner step on the whole batch, TRPO's step through the SVRG estimator's path.
+    inner = {} if preset == "trpo" else {"minibatch_size": ROWS, "inner_steps": 1, "fisher_subsample": 1.0}
+    config = make_preset(preset, "Hopper-v5", "laptop").replace(
         batch_size=ROWS, total_steps=ROWS, hidden_sizes=HIDDEN, num_workers=0, envs_per_worker=1,
         variance_probe_batches=0, cg_iters=4 * PARAMETER_COUNT, cg_residual_tol=1e-30,
-        max_kl=TARGET_KL * scale, cg_damping=DAMPING * scale, backtrack_ratio=SHRINK, max_backtracks=TRIALS)
+        max_kl=TARGET_KL * scale, cg_damping=DAMPING * scale, backtrack_ratio=SHRINK, max_backtracks=TRIALS,
+        kl_per_action_dimension=field, **inner)
     policy = entry_policy(seed=start_seed)
     stats = update_policy(policy, surrogate_batch(rows), update_parts(config),
                           torch.Generator().manual_seed(1), torch.Generator().manual_seed(2))
     assert stats.inner_steps_accepted == 1
-    return flat_parameters(policy)
+    return flat_parameters(policy), stats
 
 
 def test_sb3_contribs_update_is_ours_with_max_kl_and_damping_times_act_dim() -> None:
@@ -92,3 +103,21 @@ def test_sb3_contribs_update_is_ours_with_max_kl_and_damping_times_act_dim() -> 
         step, unscaled_step = reference - start, unscaled - start
         # Not a rescaling that happens not to matter: the step's direction and length change.
         assert float((unscaled_step - step).norm()) > 0.05 * float(step.norm()), (seed, trials)
+
+
+def test_kl_per_action_dimension_is_sb3_contribs_update_with_its_own_numbers() -> None:
+    """The field, through make_preset / update_parts / update_policy, with target_kl 0.01 and
+    damping 0.1 as sb3-contrib writes them: its float64 update to 1e-9, its per-dimension KL
+    logged as mean_kl (below target_kl), and not the summed-KL update with the same numbers."""
+    for seed in (21, 22, 23):
+        start = flat_parameters(entry_policy(seed=seed))
+        rows = sampled_rows(start, seed=seed + 50)
+        reference, _ = sb3_style_update(start, rows)
+        for preset in ("trpo", "svrpo"):
+            updated, stats = ours_with_stats(seed, rows, per_dimension=True, field=True, preset=preset)
+            torch.testing.assert_close(updated, reference, rtol=0, atol=1e-9)
+            # mean_kl is KL(old || new) per dimension; sb3-contrib bounds KL(new || old): close.
+            reverse = float(kl_per_dimension(rows, reference, start))
+            assert 0 < stats.mean_kl <= TARGET_KL and abs(stats.mean_kl - reverse) < 0.2 * reverse
+        summed = ours(seed, rows, per_dimension=False)
+        assert float((summed - reference).norm()) > 0.05 * float((reference - start).norm())

@@ -77,6 +77,8 @@ class InnerLoop:
     """Probe mini-batches at the last inner iterate (0: off)."""
     importance_weight_clip: float | None = None
     """Truncation of the fresh-sample estimators' importance weights (None: none)."""
+    kl_per_action_dimension: bool = False
+    """The trust region's KL is the mean over action dimensions (sb3-contrib's), not the sum."""
 
 
 @dataclass(frozen=True)
@@ -164,6 +166,7 @@ def update_parts(config: Config, estimator: GradientEstimator | None = None,
         backtrack_ratio=config.backtrack_ratio, max_backtracks=config.max_backtracks,
         surrogate=config.surrogate, variance_probe_batches=config.variance_probe_batches,
         importance_weight_clip=config.importance_weight_clip,
+        kl_per_action_dimension=config.kl_per_action_dimension,
     )
     return UpdateParts(
         loop=loop,

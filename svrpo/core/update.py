@@ -21,7 +21,7 @@ from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
 from svrpo.trust_region.anchors import KlBound
 from svrpo.trust_region.line_search import LineSearchResult
-from svrpo.trust_region.metrics import max_step_length
+from svrpo.trust_region.metrics import MatVec, max_step_length
 
 
 @dataclass(frozen=True)
@@ -119,12 +119,22 @@ def _mean(values: list[float] | list[int]) -> float:
     return sum(values) / len(values) if values else math.nan
 
 
+def kl_divisor(policy: GaussianMlpPolicy, kl_per_action_dimension: bool) -> int:
+    """d = act_dim when the trust region's KL is the mean over action dimensions (sb3-contrib's
+    convention, DESIGN-NOTES 22), else 1: the KL summed over dimensions is divided by it."""
+    return policy.act_dim if kl_per_action_dimension else 1
+
+
 class FullBatchEvaluator:
     """U(w) and mean KL(anchor || pi_w) on the full batch at the policy's current w, from one
-    forward pass of the network (values only, GaussianMlpPolicy.activations)."""
+    forward pass of the network (values only, GaussianMlpPolicy.activations). The KL is summed
+    over action dimensions, or averaged over them with kl_per_action_dimension."""
 
-    def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> None:
+    def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate,
+                 kl_per_action_dimension: bool = False) -> None:
         self.policy, self.batch, self.kind = policy, batch, kind
+        self.kl_per_action_dimension = kl_per_action_dimension
+        self.kl_divisor = kl_divisor(policy, kl_per_action_dimension)
         self.outside_further_balls = 0
 
     def mean(self) -> torch.Tensor:
@@ -144,7 +154,7 @@ class FullBatchEvaluator:
         with torch.no_grad():
             mean = self.mean() if mean is None else mean
             log_std = self.policy.log_std.expand_as(mean)
-            return float(gaussian_kl(anchor_mean, anchor_log_std, mean, log_std).mean())
+            return float(gaussian_kl(anchor_mean, anchor_log_std, mean, log_std).mean()) / self.kl_divisor
 
     def objective_and_kl(self, bound: KlBound) -> Callable[[], tuple[float, float]]:
         """The line search's evaluate(): () -> (U(w), KL(anchor || pi_w)), one forward pass. A
@@ -192,7 +202,7 @@ def update_policy(
     fisher_rows = max(1, int(round(loop.fisher_subsample * count)))
     minibatch_rows = loop.minibatch_size if estimator.uses_minibatches else count
 
-    full_batch = FullBatchEvaluator(policy, batch, loop.surrogate)
+    full_batch = FullBatchEvaluator(policy, batch, loop.surrogate, loop.kl_per_action_dimension)
     start_objective = step_objective = full_batch.objective()
     tally = InnerLoopTally()
 
@@ -230,6 +240,17 @@ NO_DIAGNOSTIC = VarianceDiagnostic(math.nan, math.nan, math.nan)
 """The probe's result when it does not run (its ratios are nan too)."""
 
 
+def damped_kl_hessian(parts: UpdateParts, policy: GaussianMlpPolicy, observations: torch.Tensor) -> MatVec:
+    """v -> (H + cg_damping I) v at the policy's current w, H the Hessian of the trust region's KL:
+    the Fisher F of the summed KL, or F / d of its mean over the d action dimensions
+    (kl_per_action_dimension: sb3-contrib's hessian_vector_product, damping added to F / d)."""
+    loop = parts.loop
+    if not loop.kl_per_action_dimension:
+        return parts.fisher_product(policy, observations, loop.cg_damping)
+    fisher, dimensions, damping = parts.fisher_product(policy, observations, 0.0), policy.act_dim, loop.cg_damping
+    return lambda vector: fisher(vector) / dimensions + damping * vector
+
+
 def trust_region_step(
     policy: GaussianMlpPolicy,
     batch: SurrogateBatch,
@@ -253,7 +274,7 @@ def trust_region_step(
     if not torch.isfinite(gradient).all():
         tally.skipped_gradient += 1
         return None
-    fisher_product = parts.fisher_product(policy, fisher_observations, loop.cg_damping)
+    fisher_product = damped_kl_hessian(parts, policy, fisher_observations)
     direction, cg = parts.metric.direction(gradient, fisher_product)
     if parts.observe_step is not None:  # the gradient-error tool's view of the step (one place)
         parts.observe_step(tally.attempted - 1, gradient, direction, fisher_product)

@@ -52,7 +52,7 @@ class FreshBatchEvaluator(FullBatchEvaluator):
 
     def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate,
                  snapshot: FullBatchEvaluator) -> None:
-        super().__init__(policy, batch, kind)
+        super().__init__(policy, batch, kind, snapshot.kl_per_action_dimension)
         self.snapshot = snapshot
 
     def objective_and_kl(self, bound: KlBound) -> Callable[[], tuple[float, float]]:
@@ -98,7 +98,7 @@ def update_policy_fresh(
                         "batch and runs in svrpo.core.update.update_policy")
     gradients = parts.gradients(policy, batch, loop.surrogate)  # g~ at w~, once
     parts.start(gradients)
-    snapshot = FullBatchEvaluator(policy, batch, loop.surrogate)
+    snapshot = FullBatchEvaluator(policy, batch, loop.surrogate, loop.kl_per_action_dimension)
     start_objective = snapshot.objective()
     scratch = copy.deepcopy(policy)  # evaluates the importance-weighted gradients at other points
     tally = InnerLoopTally()
