@@ -72,7 +72,7 @@ OVERRIDES: dict[str, Any] = {
     "batch_size": 500, "minibatch_size": 125, "inner_steps": 3, "num_workers": 2, "envs_per_worker": 1,
     "hidden_sizes": "32,32", "normalize_observations": True, "baseline": "mlp",
     "baseline_hidden_sizes": "32,32", "baseline_epochs": 2, "eval_every": 3, "eval_episodes": 1,
-    "variance_probe_batches": 2, "checkpoint_every": 1,
+    "variance_probe_batches": 2, "checkpoint_every": 1, "normalize_rewards": True,
 }
 CONFIG = make_preset("svrpo", ENV, "laptop").replace(
     total_steps=ITERATIONS * 500, **{name: coerce_field(name, value) for name, value in OVERRIDES.items()})

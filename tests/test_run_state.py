@@ -33,9 +33,22 @@ def _tiny(preset: str, **changes: Any) -> Config:
     return config.replace(total_steps=4 * config.steps_per_iteration)  # 4 iterations
 
 
+def _tiny_zoo(preset: str) -> Config:
+    """_tiny at the zoo scale: reward normalisation (its running statistics and each environment's
+    discounted return), the KL per action dimension, orthogonal initialisation, 2 environments."""
+    base = make_preset(preset, "InvertedPendulum-v5", "zoo")
+    inner = {} if base.estimator == "full" else {"minibatch_size": 50, "inner_steps": 3}
+    config = base.replace(batch_size=200, total_steps=800, hidden_sizes=(8, 8), baseline_epochs=2,
+                          eval_every=0, checkpoint_every=100, variance_probe_batches=2, **inner)
+    assert config.normalize_rewards and config.kl_per_action_dimension
+    return config
+
+
 def _resume_cases() -> dict[str, Config]:
-    """Every preset, and `svrpo` with every registered value of every part field (deduplicated)."""
+    """Every preset, `svrpo` with every registered value of every part field (deduplicated), and
+    `trpo` and `svrpo` at the zoo scale."""
     cases = {preset: _tiny(preset) for preset in PRESET_NAMES}
+    cases.update({f"{preset}@zoo": _tiny_zoo(preset) for preset in ("trpo", "svrpo")})
     for field, registry in PART_REGISTRIES.items():
         for name in registry:
             if name == "full":

@@ -13,6 +13,7 @@ replaced by RestartingSampler, so the batch is the one an undisturbed run would 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -30,10 +31,10 @@ from svrpo.models.baselines import explained_variance
 from svrpo.models.parameters import nonfinite_tensors
 from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.sampling.policy_snapshot import PolicySnapshot
-from svrpo.sampling.sampler import Batch
+from svrpo.sampling.sampler import Batch, steps_per_env
 
 __all__ = ["IterationResult", "PreparedBatch", "Run", "UpdateOutcome", "build_run", "make_sampler",
-           "run_iteration", "surrogate_batch", "update_and_refit"]
+           "run_iteration", "sample", "surrogate_batch", "update_and_refit"]
 
 
 def _policy_inputs(run: Run, observations: torch.Tensor) -> torch.Tensor:
@@ -202,7 +203,7 @@ def run_iteration(run: Run) -> IterationResult:
     run.sampler.label = label
     started, cpu_started = time.perf_counter(), time.process_time()
     workers_started = run.sampler.worker_cpu_seconds()
-    batch = run.sampler.sample(snapshot_of(run), run.config.batch_size)  # N steps with w~
+    batch = sample(run, run.config.batch_size)  # N steps with w~
     sampled = time.perf_counter()
     warnings = run.sampler.take_warnings()
     prepared = surrogate_batch(run, batch)  # GAE with the current baseline
@@ -250,7 +251,7 @@ def update_and_refit(run: Run, batch: Batch, prepared: PreparedBatch, label: str
         def draw_fresh() -> SurrogateBatch:
             nonlocal fresh_sampling_time
             started = time.perf_counter()
-            drawn = run.sampler.sample(snapshot_of(run), run.config.minibatch_size)  # B steps with w_j
+            drawn = sample(run, run.config.minibatch_size)  # B steps with w_j
             fresh_sampling_time += time.perf_counter() - started
             prepared_fresh = fresh_surrogate_batch(run, drawn, scale, sampling_policy)
             fresh.append((drawn, prepared_fresh.targets))
@@ -293,6 +294,18 @@ def evaluate_if_due(run: Run) -> float:
         return math.nan
     eval_seed = config.seed + 1_000_003  # the same start states at every evaluation
     return float(np.mean(run.sampler.evaluate(snapshot_of(run), config.eval_episodes, eval_seed)))
+
+
+def sample(run: Run, num_steps: int) -> Batch:
+    """num_steps steps with the current policy, their rewards scaled by the reward normaliser
+    (normalize_rewards), whose statistics move with every step sampled, as VecNormalize's do."""
+    batch = run.sampler.sample(snapshot_of(run), num_steps)
+    if run.reward_normalizer is None:
+        return batch
+    counts = steps_per_env(num_steps, max(run.config.num_workers, 1) * run.config.envs_per_worker)
+    episode_end = (batch.terminated | batch.truncated).numpy()
+    scaled = run.reward_normalizer.scale(batch.rewards.numpy(), episode_end, counts)
+    return dataclasses.replace(batch, rewards=torch.from_numpy(scaled))
 
 
 def snapshot_of(run: Run) -> PolicySnapshot:

@@ -1,7 +1,7 @@
 """A run: its parts composed from the config in `build_run` (nowhere else), and its state.
 
 `Run` owns what a checkpoint holds: `state_dict()` gathers the state of everything the next
-iteration needs (policy, baseline and its optimizer, normaliser, every random stream, every
+iteration needs (policy, baseline and its optimizer, normalisers, every random stream, every
 update part, the sampler's environments, counters) as tensors and plain values, and
 `load_state_dict()` restores it, refusing a state written with a config whose shapes or layout
 differ. checkpoint.py only writes and reads such dicts as files; the training loop's in-memory
@@ -23,14 +23,14 @@ from svrpo.core.parts import UpdateParts, update_parts
 from svrpo.core.streams import RandomStreams
 from svrpo.errors import CheckpointError, one_line
 from svrpo.models.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction
-from svrpo.models.normalization import RunningMeanStd
+from svrpo.models.normalization import RewardNormalizer, RunningMeanStd
 from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.sampling.restarting import RestartingSampler
 from svrpo.sampling.sampler import Sampler
 from svrpo.tools.allocator import keep_freed_memory
 
 MUST_MATCH = ("env_id", "hidden_sizes", "baseline", "baseline_hidden_sizes", "normalize_observations",
-              "num_workers", "envs_per_worker")
+              "normalize_rewards", "num_workers", "envs_per_worker")
 """Fields that fix the shapes of the saved tensors or the sampler layout: a state written with
 other values cannot be loaded into this run. (total_steps may change: that extends a run.)"""
 
@@ -55,6 +55,9 @@ class Run:
     """The policy update's estimator, metric, KL anchor and stopping rule, built from config."""
     streams: RandomStreams = field(default_factory=lambda: RandomStreams(0))
     """Every random stream of the learner, by name (svrpo/core/streams.py)."""
+    reward_normalizer: RewardNormalizer | None = None
+    """Scales every sampled batch's rewards (normalize_rewards). Sampling state, like the
+    sampler's environments: an undone update does not undo it."""
     iteration: int = 0
     env_steps: int = 0
     wall_time: float = 0.0
@@ -119,6 +122,8 @@ class Run:
             "torch_rng": torch.get_rng_state(),
             "numpy_rng": np.random.get_state(),
             "sampler": copy.deepcopy(self.sampler.get_state()),
+            "reward_normalizer": (None if self.reward_normalizer is None
+                                  else self.reward_normalizer.state_dict()),
         }
 
     def load_state_dict(self, state: dict[str, Any], source: object = "the state") -> None:
@@ -145,6 +150,8 @@ class Run:
             torch.set_rng_state(state["torch_rng"])
             np.random.set_state(state["numpy_rng"])
             self.sampler.set_state(state["sampler"])
+            if self.reward_normalizer is not None:
+                self.reward_normalizer.load_state_dict(state["reward_normalizer"])
             self.iteration = int(state["iteration"])
             self.env_steps = int(state["env_steps"])
             self.wall_time = float(state["wall_time"])
@@ -189,6 +196,8 @@ def build_run(config: Config, estimator: GradientEstimator | None = None) -> Run
             config.weight_init,
         )
     normalizer = RunningMeanStd(info.obs_dim) if config.normalize_observations else None
+    num_envs = max(config.num_workers, 1) * config.envs_per_worker
+    reward_normalizer = RewardNormalizer(num_envs, config.gamma) if config.normalize_rewards else None
     # The streams every run draws from exist before any part asks for its own.
     streams.generator("minibatches")
     streams.generator("probe")
@@ -200,4 +209,5 @@ def build_run(config: Config, estimator: GradientEstimator | None = None) -> Run
         sampler=sampler,
         parts=update_parts(config, estimator, streams),
         streams=streams,
+        reward_normalizer=reward_normalizer,
     )

@@ -247,7 +247,8 @@ def damped_kl_hessian(parts: UpdateParts, policy: GaussianMlpPolicy, observation
     loop = parts.loop
     if not loop.kl_per_action_dimension:
         return parts.fisher_product(policy, observations, loop.cg_damping)
-    fisher, dimensions, damping = parts.fisher_product(policy, observations, 0.0), policy.act_dim, loop.cg_damping
+    fisher = parts.fisher_product(policy, observations, 0.0)
+    dimensions, damping = policy.act_dim, loop.cg_damping
     return lambda vector: fisher(vector) / dimensions + damping * vector
 
 
