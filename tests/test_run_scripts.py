@@ -148,3 +148,36 @@ def test_anchor_gap_scripts_run_their_specs_as_the_protocol_says(
     seeds = {Path(call[1]).stem: load_spec(call[1]).seeds for call in calls}
     assert all(s == ((0, 1, 2) if "closest" in n or "one-env" in n else (0, 1, 2, 3, 4))
                for n, s in seeds.items())
+
+
+def test_zoo_trpo_runs_both_arms_as_one_queue_then_evaluates_every_run_150_episodes(tmp_path: Path) -> None:
+    """results/zoo-trpo/run.sh (PROTOCOL.md sections 2, 3 and 7): one sweep of both committed specs
+    (trpo at the zoo scale, seeds 0-4, 1,001,472 steps, the second without reward normalisation),
+    then `svrpo evaluate` with 150 episodes on each of the 60 run directories, once."""
+    script = ROOT / "results" / "zoo-trpo" / "run.sh"
+    root = tmp_path / "runs"
+    with pytest.raises(subprocess.CalledProcessError):  # the stand-in trains nothing: it stops there
+        _calls(script, tmp_path, str(root))
+    sweep, *evaluations = [shlex.split(line) for line in (tmp_path / "calls.txt").read_text().splitlines()]
+    assert not evaluations
+    specs = _specs(sweep)
+    assert [Path(spec).name for spec in specs] == ["zoo-trpo.yaml", "zoo-trpo-raw-rewards.yaml"]
+    assert _value(sweep, "--root") == str(root) and _value(sweep, "--jobs") == "2"
+    primary, raw = (load_spec(spec) for spec in specs)
+    for spec in (primary, raw):
+        assert spec.scale == "zoo" and spec.presets == ("trpo",) and spec.seeds == (0, 1, 2, 3, 4)
+        assert len(spec.tasks) == 6 and spec.overrides["total_steps"] == 1_001_472
+    assert raw.overrides == {**primary.overrides, "normalize_rewards": False}
+    assert primary.config("Swimmer-v5", "trpo", 0).normalize_rewards
+    runs = [root / f"{spec.name}-zoo" / task / "trpo" / f"seed{seed}"
+            for spec in (primary, raw) for task in spec.tasks for seed in spec.seeds]
+    for run in runs:
+        run.mkdir(parents=True)
+    calls = _calls(script, tmp_path, str(root))
+    assert calls[0][0] == "sweep"
+    evaluated = sorted(call[1] for call in calls[1:])
+    assert evaluated == sorted(str(run) for run in runs)
+    assert all(call[0] == "evaluate" and call[2:] == ["--episodes", "150", "--seed", "5000000"]
+               for call in calls[1:])
+    outputs = sorted((root / "zoo-trpo-eval150").rglob("seed*.txt"))
+    assert len(outputs) == 60 and not list((root / "zoo-trpo-eval150").rglob("*.tmp"))
