@@ -327,6 +327,47 @@ def test_modern_scale_is_sb3_contribs_trpo_and_svrpo_differs_only_in_its_inner_l
     assert make_preset("svrpo", "Ant-v5", "modern").hidden_sizes == (64, 64)  # sb3's, every task
 
 
+ZOO_TRPO_YML = {  # rl-baselines3-zoo hyperparams/trpo.yml (22e3ff2), mujoco-defaults <- pybullet-defaults
+    "normalize": True, "n_envs": 2, "n_timesteps": 1e6, "batch_size": 128, "n_steps": 1024,
+    "gamma": 0.99,
+    "gae_lambda": 0.95, "sub_sampling_factor": 1, "cg_max_steps": 25, "cg_damping": 0.1,
+    "n_critic_updates": 20, "learning_rate": 1e-3,
+}
+ZOO_TASK_OVERRIDES = {"HalfCheetah-v5": {"target_kl": 0.04}, "Swimmer-v5": {"gamma": 0.9999},
+                      "Humanoid-v5": {"n_timesteps": 2e6}}
+SB3_CONTRIB_TRPO_DEFAULTS = {"target_kl": 0.01, "line_search_shrinking_factor": 0.8,
+                             "line_search_max_iter": 10, "normalize_advantage": True}
+
+
+@pytest.mark.parametrize("env_id", TASKS)
+def test_zoo_scale_is_rl_zoos_trpo_yml_key_by_key(env_id: str) -> None:
+    """docs/zoo-trpo.md's table: each rl-zoo key (and sb3-contrib default it leaves) in our fields."""
+    zoo = {**ZOO_TRPO_YML, **SB3_CONTRIB_TRPO_DEFAULTS, **ZOO_TASK_OVERRIDES.get(env_id, {})}
+    trpo = make_preset("trpo", env_id, "zoo")
+    rollout = zoo["n_envs"] * zoo["n_steps"]
+    expected = {
+        "normalize_observations": zoo["normalize"], "normalize_rewards": zoo["normalize"],
+        "num_workers": 0, "envs_per_worker": zoo["n_envs"], "batch_size": rollout,
+        "total_steps": math.ceil(zoo["n_timesteps"] / rollout) * rollout,  # whole rollouts until n_timesteps
+        "baseline": "mlp", "baseline_minibatch_size": zoo["batch_size"],
+        "baseline_epochs": zoo["n_critic_updates"],
+        "baseline_lr": zoo["learning_rate"], "gamma": zoo["gamma"], "gae_lambda": zoo["gae_lambda"],
+        "fisher_subsample": 1 / zoo["sub_sampling_factor"], "cg_iters": zoo["cg_max_steps"],
+        "cg_damping": zoo["cg_damping"], "max_kl": zoo["target_kl"], "kl_per_action_dimension": True,
+        "backtrack_ratio": zoo["line_search_shrinking_factor"],
+        "max_backtracks": zoo["line_search_max_iter"],
+        "normalize_advantages": zoo["normalize_advantage"], "estimator": "full", "inner_steps": 1,
+        # MlpPolicy: tanh (64, 64) actor and critic, log_std_init 0, ortho_init True
+        "hidden_sizes": (64, 64), "baseline_hidden_sizes": (64, 64), "init_log_std": 0.0,
+        "weight_init": "orthogonal", "stagger_first_episodes": False,
+    }
+    assert {name: getattr(trpo, name) for name in expected} == expected
+    # Every other preset: the same fields plus the modern scale's inner-loop rule.
+    svrpo = make_preset("svrpo", env_id, "zoo")
+    assert differing_fields(trpo, svrpo) == {
+        "estimator": ("full", "svrg"), "minibatch_size": (1000, 512), "inner_steps": (1, 8)}
+
+
 _VALID = json.loads(make_preset("svrpo", "Hopper-v5", "laptop").to_json())
 _FIELD_TYPES: dict[str, type | tuple[type, ...]] = {name: type(value) for name, value in _VALID.items()}
 # Optional fields (None by default: the task's time limit, a derived kl_step, no truncation, ...)
