@@ -140,7 +140,7 @@ class Config:
     """Scale rewards as stable-baselines3's VecNormalize does (norm_reward): each environment keeps
     a discounted return R <- gamma R + r (reset at every episode end), its running variance is
     updated with the environments' R at every step, and r becomes clip(r / sqrt(var + 1e-8), +-10)
-    (svrpo/models/normalization.RewardNormalizer). Advantages and the critic see scaled rewards;
+    (RewardNormalizer in svrpo/models/normalization.py). Advantages and the critic see scaled rewards;
     returns and evaluations stay raw."""
     max_episode_steps: int | None = None
     """Horizon: episodes are truncated (and bootstrapped) after this many steps. None: the task's
