@@ -2,8 +2,9 @@
 mid-update), or with damaged checkpoints or progress.csv, resumes to exactly the uninterrupted result.
 
 Most tests compare against one uninterrupted reference run (`reference` in conftest.py, built once).
-The config uses observation normalisation and the MLP baseline, so its optimizer state, the
-normaliser's moments and the baseline's mini-batch generator must all survive a resume.
+The config uses observation and reward normalisation and the MLP baseline, so its optimizer state,
+both normalisers' moments (and each environment's discounted return) and the baseline's
+mini-batch generator must all survive a resume.
 """
 
 from __future__ import annotations
