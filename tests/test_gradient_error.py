@@ -232,3 +232,28 @@ def test_observing_the_loop_does_not_change_it() -> None:
                                 torch.Generator().manual_seed(8))
         assert len(records) == 5
         assert torch.equal(flat_parameters(plain), flat_parameters(observed)), name
+
+
+def test_batches_are_read_in_the_checkpoints_reward_scale() -> None:
+    """With normalize_rewards, every batch the tool draws is scaled as training scales it
+    (algorithm.sample), from the checkpoint's reward statistics each time: a large reference batch
+    must not move the scale the ordinary batch is read in."""
+    from svrpo.analysis.gradient_error import sample_frozen
+    from svrpo.core.algorithm import build_run, sample
+
+    config = make_preset("trpo", "InvertedPendulum-v5", "modern").replace(
+        normalize_rewards=True, num_workers=0, envs_per_worker=2, batch_size=64, total_steps=64)
+    measured, trained = build_run(config), build_run(config)
+    try:
+        assert measured.reward_normalizer is not None
+        before = {k: (v.clone() if isinstance(v, torch.Tensor) else v)
+                  for k, v in measured.reward_normalizer.state_dict().items()}
+        batch = sample_frozen(measured, 64)
+        after = measured.reward_normalizer.state_dict()
+        for key, value in before.items():
+            assert torch.equal(torch.as_tensor(after[key]), torch.as_tensor(value)), key
+        assert torch.equal(batch.rewards, sample(trained, 64).rewards)
+        assert not torch.equal(batch.rewards, torch.ones_like(batch.rewards))  # InvertedPendulum's raw reward
+    finally:
+        measured.sampler.close()
+        trained.sampler.close()

@@ -43,7 +43,7 @@ import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 
@@ -57,6 +57,10 @@ from svrpo.fresh.loop import update_policy_fresh
 from svrpo.models.parameters import flat_gradient, flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.trust_region.metrics import MatVec
+
+if TYPE_CHECKING:
+    from svrpo.core.run import Run
+    from svrpo.sampling.sampler import Batch
 
 __all__ = ["ErrorSplit", "GradientErrorReport", "NoiseScale", "ReferenceGradient", "StepErrors",
            "VectorError", "error_split", "gradient_noise_scale", "measure_gradient_error",
@@ -316,6 +320,18 @@ def replay_configs(saved: Config, estimators: Sequence[str], update_from: Sequen
     return configs
 
 
+def sample_frozen(run: Run, num_steps: int) -> Batch:
+    """num_steps steps with the current policy, rewards scaled as in training (algorithm.sample:
+    normalize_rewards), but from the checkpoint's reward statistics every time: the measurement
+    must not let a large reference batch move the scale the ordinary batch is read in."""
+    from svrpo.core.algorithm import sample
+
+    saved = copy.deepcopy(run.reward_normalizer)
+    batch = sample(run, num_steps)
+    run.reward_normalizer = saved
+    return batch
+
+
 def measure_gradient_error(
     path: str | os.PathLike[str],
     estimators: Sequence[str] = (),
@@ -347,7 +363,6 @@ def measure_gradient_error(
         advantage_scale,
         build_run,
         fresh_surrogate_batch,
-        snapshot_of,
         surrogate_batch,
     )
     from svrpo.core.parts import update_parts
@@ -379,8 +394,8 @@ def measure_gradient_error(
         except (KeyError, RuntimeError, ValueError, TypeError) as error:
             raise CheckpointError(f"{source} does not fit its own config: {error}") from None
         # The reference first: the ordinary batch then starts mid-episode, as in training.
-        reference = surrogate_batch(run, run.sampler.sample(snapshot_of(run), reference_steps)).data
-        raw_batch = run.sampler.sample(snapshot_of(run), base.batch_size)
+        reference = surrogate_batch(run, sample_frozen(run, reference_steps)).data
+        raw_batch = sample_frozen(run, base.batch_size)
         batch = surrogate_batch(run, raw_batch).data
         start = copy.deepcopy(run.policy.state_dict())
         at_start = reference_gradient(run.policy, reference, reference_parts, base.surrogate)
@@ -397,7 +412,7 @@ def measure_gradient_error(
 
                 def draw_fresh(config: Config = config, sampling_policy: GaussianMlpPolicy = sampling_policy,
                                scale: tuple[torch.Tensor, torch.Tensor] = scale) -> SurrogateBatch:
-                    drawn = run.sampler.sample(snapshot_of(run), config.minibatch_size)
+                    drawn = sample_frozen(run, config.minibatch_size)
                     return fresh_surrogate_batch(run, drawn, scale, sampling_policy).data
 
             steps += replay_errors(name, run.policy, batch, reference, reference_parts, parts,
