@@ -284,7 +284,8 @@ def test_no_generator_is_made_outside_the_allocator() -> None:
         relative = path.relative_to(PACKAGE).as_posix()
         if relative in ALLOWED_GENERATORS:
             continue
-        found += [f"svrpo/{relative}:{line}: {call}" for line, call in _random_calls(ast.parse(path.read_text()))]
+        calls = _random_calls(ast.parse(path.read_text()))
+        found += [f"svrpo/{relative}:{line}: {call}" for line, call in calls]
     assert not found, ("random numbers outside the allocator: take a named stream from "
                        "svrpo.core.streams.RandomStreams (the checkpoint then holds it): " + "; ".join(found))
     stale = [name for name in ALLOWED_GENERATORS if not (PACKAGE / name).is_file()]
