@@ -288,6 +288,42 @@ def test_stopping_and_resuming_a_fresh_run_gives_the_uninterrupted_rows(tmp_path
         200 + int(r["fresh_steps"]) for r in rows))
 
 
+class _RecordingStormPg(StormPgGradient):
+    """STORM-PG that records, at every fresh step, the truncation it was handed and the largest
+    weight of w_{j-1} against w_j with and without it."""
+
+    def __init__(self, momentum: float) -> None:
+        super().__init__(momentum)
+        self.clips: list[float | None] = []
+        self.largest: list[tuple[float, float]] = []  # (truncated, untruncated)
+
+    def estimate_fresh(self, fresh: FreshGradients) -> torch.Tensor:
+        previous = self.previous[0]
+        untruncated = FreshGradients(fresh.policy, fresh.batch, None).weights_at(previous)
+        self.clips.append(fresh.clip)
+        self.largest.append((float(fresh.weights_at(previous).max()), float(untruncated.max())))
+        return super().estimate_fresh(fresh)
+
+
+def test_a_configured_importance_weight_clip_reaches_the_fresh_estimate(tmp_path: Path) -> None:
+    """svrpo.train with importance_weight_clip = 1: every fresh step's estimate is handed that
+    truncation, which binds (some weight of w_{j-1} exceeds 1), and the rows differ from the same
+    run untruncated. A config field not passed on to the loop trains untruncated silently."""
+    config = _tiny("stormpg", importance_weight_clip=1.0)
+    recording = _RecordingStormPg(config.storm_momentum)
+    svrpo.train(config, tmp_path / "recorded", show_progress=False, estimator=recording)
+    assert len(recording.clips) == sum(int(r["inner_steps_attempted"]) - 1
+                                       for r in progress_rows(tmp_path / "recorded")) > 0
+    assert set(recording.clips) == {1.0}
+    assert all(truncated <= 1.0 for truncated, _ in recording.largest)
+    assert any(untruncated > 1.0 for _, untruncated in recording.largest), "the clip never bound"
+    svrpo.train(config, tmp_path / "clipped", show_progress=False)
+    svrpo.train(config.replace(importance_weight_clip=None), tmp_path / "untruncated", show_progress=False)
+    clipped = without_clock(progress_rows(tmp_path / "clipped"))
+    assert without_clock(progress_rows(tmp_path / "recorded")) == clipped  # recording changed nothing
+    assert without_clock(progress_rows(tmp_path / "untruncated")) != clipped
+
+
 def test_every_accepted_fresh_step_is_inside_both_balls_on_its_fresh_states() -> None:
     """With the budgeted anchor each accepted step is within kl_step of w_j and within max_kl of
     pi_{w~}, measured on the fresh states of that step, on a run where the budget binds. Every
