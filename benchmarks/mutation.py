@@ -54,6 +54,9 @@ REPORT_TESTS = ("tests/test_screening_report.py",)
 """The tests of benchmarks/screening_report.py: the pre-registered experiments' selection rule,
 matched KL, confirmation specs and questions, the equal-steps reading."""
 
+COVERAGE_TESTS = ("tests/test_stream_coverage.py", "tests/test_field_coverage.py", "tests/test_fresh.py")
+"""The checks that every random stream resumes and every Config field reaches the run (issue 43)."""
+
 QUEUE_TESTS = ("tests/test_sweep.py::test_several_specs_are_one_queue_task_major_then_seed_then_spec",
                "tests/test_sweep.py::test_the_plan_is_task_major_then_seed_major_with_the_presets_interleaved")
 """The tests of the sweep's plan (svrpo/experiments/jobs.py: plan and plan_all's one queue)."""
@@ -601,6 +604,22 @@ MUTANTS = [
            "finals, aucs = window_scores(task_runs), area_scores(task_runs)",
            "finals, aucs = window_scores(task_runs), window_scores(task_runs)",
            "the area-under-the-curve column is the final window again", REPORT_TESTS),
+    # --- issue 43: what the suite could not see (a stream outside the checkpoint, a field dropped)
+    Mutant("page-stream-not-checkpointed", "svrpo/core/estimators.py",
+           'streams.generator("page")', 'RandomStreams(config.seed).generator("page")',
+           "PAGE's coins from the right seed, in an allocator the checkpoint does not hold: the "
+           "uninterrupted run is unchanged, a resumed one restarts the coins", COVERAGE_TESTS),
+    Mutant("importance-weight-clip-not-passed", "svrpo/core/parts.py",
+           "        importance_weight_clip=config.importance_weight_clip,\n", "",
+           "the configured clip does not reach the fresh-sample loop (trains untruncated)",
+           COVERAGE_TESTS),
+    Mutant("kl-step-not-passed", "svrpo/trust_region/anchors.py",
+           "config.max_kl, config.kl_step if",
+           "config.max_kl, budgeted_step_radius(config.max_kl, config.inner_steps) if",
+           "the configured kl_step does not reach the budgeted anchor", COVERAGE_TESTS),
+    Mutant("envs-not-staggered", "svrpo/core/run.py",
+           "stagger=config.stagger_first_episodes", "stagger=False",
+           "stagger_first_episodes does not reach the sampler", COVERAGE_TESTS),
     # --- svrpo/experiments/jobs.py: one queue of several specs -------------------------------
     Mutant("queue-duplicate-run-dirs-allowed", "svrpo/experiments/jobs.py",
            "        if job.run_dir in seen:\n", "        if False:\n",
@@ -667,7 +686,7 @@ def main() -> None:
     report = {
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
         "tests": TESTS, "statistics_tests": list(STATISTICS_TESTS), "report_tests": list(REPORT_TESTS),
-        "queue_tests": list(QUEUE_TESTS), "mutants": len(results),
+        "queue_tests": list(QUEUE_TESTS), "coverage_tests": list(COVERAGE_TESTS), "mutants": len(results),
         "killed": len(results) - len(survivors), "not_killed": survivors, "results": results,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
