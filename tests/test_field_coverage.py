@@ -58,7 +58,9 @@ def _tiny(preset: str) -> Config:
     """A run of ITERATIONS iterations in well under a second, every field's code path live: an
     MLP critic (modern scale), evaluation, the variance probe, inner steps."""
     base = make_preset(preset, ENV, "modern")
-    config = base.replace(batch_size=128, minibatch_size=32, inner_steps=3, total_steps=10**6,
+    # J = 4: svrpo-page's searches fail before the last step (inner_stop stops early) with or
+    # without staggered episodes; at J = 3 whether a search failed early depended on the data.
+    config = base.replace(batch_size=128, minibatch_size=32, inner_steps=4, total_steps=10**6,
                           num_workers=0, envs_per_worker=2, hidden_sizes=(8, 8),
                           baseline_hidden_sizes=(8, 8), baseline_epochs=2, baseline_minibatch_size=32,
                           eval_every=2, eval_episodes=1, checkpoint_every=100, variance_probe_batches=2)
