@@ -249,6 +249,8 @@ ALLOWED_GENERATORS: dict[str, str] = {
                                   "from (seed, worker index) in the torch-free worker, saved in the "
                                   "sampler's state (covered above)",
     "analysis/evaluation.py": "evaluating a finished run: one generator per episode from (seed, episode)",
+    "analysis/gradient_error.py": "`svrpo gradient-error` replays one iteration at a checkpoint, "
+                                  "outside any run: nothing it draws is resumed",
     "analysis/plotting.py": "bootstrap intervals of finished runs, not part of a run",
     "experiments/aggregate.py": "bootstrap intervals of finished runs, not part of a run",
     "tools/bench.py": "benchmark inputs, not part of a run",
