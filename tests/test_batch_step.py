@@ -12,13 +12,16 @@ import pytest
 
 import svrpo
 from svrpo.config import make_preset
-from svrpo.sampling.batch_step import STEPPER_BY_TASK, BatchStep, make_stepper, uses_batch_step
+from svrpo.sampling.batch_step import MUJOCO_BATCH, STEPPER_BY_TASK, BatchStep, make_stepper, uses_batch_step
 from svrpo.sampling.envs import make_env
 from svrpo.sampling.rollout_worker import RolloutWorker, WorkerChunk
 from svrpo.sampling.sampler import Sampler
 from svrpo.sampling.vector_step import VectorStep
 from svrpo.tools.bench import random_snapshot
 from tests.helpers import progress_rows, without_clock
+
+# MuJoCo 3.x (.ci/floors) has no mujoco.batch: tests/test_dependencies.py covers the fallback.
+pytestmark = pytest.mark.skipif(MUJOCO_BATCH is None, reason="no mujoco.batch (MuJoCo < 4.0)")
 
 BATCH_TASKS = ["Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5"]
 _FIELDS = [field.name for field in dataclasses.fields(WorkerChunk)]

@@ -22,6 +22,7 @@ from svrpo.rundir import checkpoint
 from svrpo.rundir.atomic import write_text_atomic
 from svrpo.rundir.run_files import foreign_entries
 from svrpo.rundir.run_record import write_config, write_meta
+from svrpo.sampling.batch_step import stepper_record
 
 
 class RunStatus(str, Enum):
@@ -198,7 +199,8 @@ def prepare(job: RunJob) -> None:
     job.run_dir.mkdir(parents=True, exist_ok=True)
     if not (job.run_dir / "config.json").is_file():
         write_config(job.run_dir, job.config)
-    write_meta(job.run_dir, job.preset, job.scale, keep_existing=True, experiment=job.experiment)
+    write_meta(job.run_dir, job.preset, job.scale, keep_existing=True, experiment=job.experiment,
+               **stepper_record(job.config.env_id))
 
 
 def execute(run_dir: Path) -> JobResult:

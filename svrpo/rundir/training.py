@@ -24,6 +24,7 @@ from svrpo.rundir.logging import RunLogger, truncate_progress
 from svrpo.rundir.run_files import claim_run_directory
 from svrpo.rundir.run_lock import exclusive_writer, record_holder
 from svrpo.rundir.run_record import write_config, write_meta
+from svrpo.sampling.batch_step import stepper_record
 
 Callback = Callable[[dict[str, Any]], Any]
 """Called after every iteration with its progress.csv row; a falsy return stops the run."""
@@ -100,15 +101,17 @@ def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bo
     resume must pass the same one again (config.json cannot record an object).
     `callback(row)`: called after every iteration with its progress row; a falsy return stops
     the run after checkpointing that iteration (resume continues it, as after Ctrl-C).
-    `record`: written to run.json for a new run.
+    `record`: written to run.json for a new run, with the stepper the sampling workers use and
+    the MuJoCo version (batch_step.stepper_record).
     """
     with exclusive_writer(run_dir):  # one writer per run (re-entrant: the CLI may hold it already)
         notes = claim_run_directory(run_dir, resume, overwrite)
         if not resume:
             # Written first, so that a run killed while starting is still a resumable directory.
             write_config(run_dir, config)
-            if record is not None:
-                write_meta(run_dir, record.preset, record.scale, **record.extra)
+            if record is not None:  # with the workers' stepper and the MuJoCo version
+                write_meta(run_dir, record.preset, record.scale,
+                           **{**record.extra, **stepper_record(config.env_id)})
         return _train(config, run_dir, resume, show_progress, estimator, callback, notes)
 
 

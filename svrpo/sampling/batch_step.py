@@ -14,20 +14,39 @@ tasks the batch is persistent and each simulation's MjData is copied out (`get_d
 `mj_rnePostConstraint` run on the copy. That copy costs what the batch call saves, so workers
 use BatchStep only where it was measured faster (STEPPER_BY_TASK).
 
+`mujoco.batch` exists from MuJoCo 4.0 on. Under MuJoCo 3.x "auto" falls back to VectorStep,
+whose batches are bit-identical (tests/test_dependencies.py), only slower on the four tasks
+above; the run records the stepper and the MuJoCo version in run.json (`stepper_record`).
+
 This module must not import torch: rollout workers import it.
 """
 
 from __future__ import annotations
 
+import importlib
+import warnings
 from collections.abc import Sequence
+from types import ModuleType
 from typing import Any, Literal
 
 import gymnasium as gym
 import mujoco
-import mujoco.batch
 import numpy as np
 
+from svrpo.sampling.envs import make_env
 from svrpo.sampling.vector_step import TASKS, VectorStep, _is_default
+
+
+def _import_mujoco_batch() -> ModuleType | None:
+    """mujoco.batch, or None under a MuJoCo without it (3.x)."""
+    try:
+        return importlib.import_module("mujoco.batch")
+    except ImportError:
+        return None
+
+
+MUJOCO_BATCH: ModuleType | None = _import_mujoco_batch()
+"""The mujoco.batch module (MuJoCo >= 4.0), None where it is missing: then "auto" is VectorStep."""
 
 StepperName = Literal["auto", "vector", "batch"]
 """A worker's physics stepper: "auto" (STEPPER_BY_TASK), or VectorStep / BatchStep forced."""
@@ -56,22 +75,59 @@ def uses_batch_step(env_id: str) -> bool:
     return STEPPER_BY_TASK.get(env_id) == "batch"
 
 
-def make_stepper(env_id: str, envs: Sequence[gym.Env],
-                 stepper: StepperName = "auto") -> VectorStep | BatchStep:
-    """The stepper for envs (made by envs.make_env(env_id)): BatchStep where STEPPER_BY_TASK says
-    so and the registration is the default task that VectorStep's logic reproduces, else
-    VectorStep. stepper="vector" or "batch" forces one (benchmarks, tests); ValueError for
-    "batch" on a task without batched logic."""
+def choose_stepper(env_id: str, env: gym.Env, stepper: StepperName = "auto") -> Literal["vector", "batch"]:
+    """The one place a worker's stepper is chosen, for env (made by envs.make_env(env_id)):
+    "batch" where STEPPER_BY_TASK says so, the registration is the default task that VectorStep's
+    logic reproduces and mujoco.batch exists (MUJOCO_BATCH), else "vector". stepper="vector" or
+    "batch" forces one (benchmarks, tests); ValueError for "batch" on a task without batched logic
+    or under a MuJoCo without mujoco.batch (forced, so no silent substitute)."""
     if stepper not in ("auto", "vector", "batch"):
         raise ValueError(f"stepper must be 'auto', 'vector' or 'batch', got {stepper!r}")
     if stepper == "vector":
-        return VectorStep(env_id, envs)
-    supported = env_id in TASKS and _is_default(env_id, envs[0].unwrapped)
+        return "vector"
+    supported = env_id in TASKS and _is_default(env_id, env.unwrapped)
     if stepper == "batch":
         if not supported:
             raise ValueError(f"BatchStep has no batched logic for {env_id!r} (tasks: {sorted(TASKS)})")
+        if MUJOCO_BATCH is None:
+            raise ValueError(f"stepper 'batch' needs mujoco.batch (MuJoCo >= 4.0), this is MuJoCo "
+                             f"{mujoco.__version__}; use 'auto' or 'vector' (the same batches)")
+        return "batch"
+    return "batch" if supported and uses_batch_step(env_id) and MUJOCO_BATCH is not None else "vector"
+
+
+def make_stepper(env_id: str, envs: Sequence[gym.Env],
+                 stepper: StepperName = "auto") -> VectorStep | BatchStep:
+    """The stepper choose_stepper picks for envs (made by envs.make_env(env_id))."""
+    if choose_stepper(env_id, envs[0], stepper) == "batch":
         return BatchStep(env_id, envs)
-    return BatchStep(env_id, envs) if supported and uses_batch_step(env_id) else VectorStep(env_id, envs)
+    return VectorStep(env_id, envs)
+
+
+_warned_no_batch = False
+
+
+def stepper_record(env_id: str) -> dict[str, str]:
+    """{"stepper": what "auto" gives env_id's workers, "mujoco": the MuJoCo version}, for run.json.
+
+    The parent calls the workers' own choose_stepper (same interpreter, same packages), once
+    per run; where mujoco.batch is missing and "auto" would have used it, it warns (once per
+    process: the workers themselves stay silent, so a run warns once, not once per worker).
+    """
+    global _warned_no_batch
+    chosen: str = "vector"
+    if uses_batch_step(env_id):  # only then does the choice depend on the env itself
+        env = make_env(env_id)
+        try:
+            chosen = choose_stepper(env_id, env)
+            if chosen == "vector" and MUJOCO_BATCH is None and not _warned_no_batch:
+                _warned_no_batch = True
+                warnings.warn(f"MuJoCo {mujoco.__version__} has no mujoco.batch (MuJoCo >= 4.0): {env_id}'s "
+                              "workers step with VectorStep instead of BatchStep (the same batches, "
+                              "somewhat slower; docs/dependencies.md)", RuntimeWarning, stacklevel=2)
+        finally:
+            env.close()
+    return {"stepper": chosen, "mujoco": mujoco.__version__}
 
 
 class BatchStep:
@@ -94,7 +150,10 @@ class BatchStep:
         self._contact = logic.needs_contact_forces
         # cfrc_ext after Gymnasium's step comes from mj_rnePostConstraint on the MjData as mj_step
         # leaves it: only a persistent batch keeps that MjData, per simulation.
-        self.batch = mujoco.batch.Batch(self._model, nsim=len(self.envs), nthread=nthread,
+        if MUJOCO_BATCH is None:
+            raise RuntimeError(f"BatchStep needs mujoco.batch (MuJoCo >= 4.0), this is MuJoCo "
+                               f"{mujoco.__version__}")
+        self.batch = MUJOCO_BATCH.Batch(self._model, nsim=len(self.envs), nthread=nthread,
                                         persistent=self._contact)
         self._qpos = self.batch.bind("qpos")
         self._qvel = self.batch.bind("qvel")
