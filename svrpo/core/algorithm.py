@@ -26,7 +26,6 @@ from svrpo.core.advantages import STANDARDIZE_EPS, generalized_advantages, stand
 from svrpo.core.objectives import SurrogateBatch, old_log_prob
 from svrpo.core.run import Run, build_run, make_sampler
 from svrpo.core.update import UpdateStats, update_policy
-from svrpo.fresh.loop import update_policy_fresh
 from svrpo.models.baselines import explained_variance
 from svrpo.models.parameters import nonfinite_tensors
 from svrpo.models.policy import GaussianMlpPolicy
@@ -226,6 +225,32 @@ def run_iteration(run: Run) -> IterationResult:
     )
 
 
+class DrawsWithIterate:
+    """The update's `draw` (svrpo.core.step_rows.DrawWithIterate): steps sampled inside the
+    inner loop with the policy as it is then (w_j), prepared by fresh_surrogate_batch against
+    the snapshot batch (its sampling policy w~ and its advantage scale), each kept with its value
+    targets for the critic's fit. Called only by an estimator that draws (FreshDraws)."""
+
+    def __init__(self, run: Run, batch: Batch) -> None:
+        self.run, self.batch = run, batch
+        self.sampling_policy = copy.deepcopy(run.policy)  # w~, before the update moves it
+        self._scale: tuple[torch.Tensor, torch.Tensor] | None = None
+        self.drawn: list[tuple[Batch, torch.Tensor]] = []
+        """(drawn batch, its value targets), in the order drawn."""
+        self.sampling_time = 0.0
+        """Seconds spent sampling them."""
+
+    def __call__(self, num_steps: int) -> SurrogateBatch:
+        if self._scale is None:  # the baseline and normaliser stay fixed until the refit
+            self._scale = advantage_scale(self.run, self.batch)
+        started = time.perf_counter()
+        drawn = sample(self.run, num_steps)  # with w_j
+        self.sampling_time += time.perf_counter() - started
+        prepared = fresh_surrogate_batch(self.run, drawn, self._scale, self.sampling_policy)
+        self.drawn.append((drawn, prepared.targets))
+        return prepared.data
+
+
 def update_and_refit(run: Run, batch: Batch, prepared: PreparedBatch, label: str) -> UpdateOutcome:
     """The policy update (Algorithm 1, lines 5-12) and the baseline refit, guarded.
 
@@ -243,23 +268,9 @@ def update_and_refit(run: Run, batch: Batch, prepared: PreparedBatch, label: str
         return UpdateOutcome(None, math.nan, f"warning: {label}: non-finite {', '.join(bad_data)} "
                                              "in the batch; update skipped, parameters kept")
     before = run.learned_state()
-    fresh: list[tuple[Batch, torch.Tensor]] = []  # (fresh batch, its value targets)
-    fresh_sampling_time = 0.0
-    if run.config.fresh_samples:
-        sampling_policy, scale = copy.deepcopy(run.policy), advantage_scale(run, batch)
-
-        def draw_fresh() -> SurrogateBatch:
-            nonlocal fresh_sampling_time
-            started = time.perf_counter()
-            drawn = sample(run, run.config.minibatch_size)  # B steps with w_j
-            fresh_sampling_time += time.perf_counter() - started
-            prepared_fresh = fresh_surrogate_batch(run, drawn, scale, sampling_policy)
-            fresh.append((drawn, prepared_fresh.targets))
-            return prepared_fresh.data
-
-        stats = update_policy_fresh(run.policy, data, run.parts, run.generator, draw_fresh)
-    else:
-        stats = update_policy(run.policy, data, run.parts, run.generator, run.probe_generator)
+    draws = DrawsWithIterate(run, batch)
+    stats = update_policy(run.policy, data, run.parts, run.generator, run.probe_generator, draw=draws)
+    fresh = draws.drawn
     explained = explained_variance(values, targets)  # of the values the advantages used
     # The normaliser and the critic learn from every step sampled in the iteration: the
     # snapshot batch, then the fresh batches in the order they were drawn, in one update/fit
@@ -277,12 +288,12 @@ def update_and_refit(run: Run, batch: Batch, prepared: PreparedBatch, label: str
     broken = _nonfinite_learned_state(run)
     drawn = tuple(b for b, _ in fresh)
     if not broken:
-        return UpdateOutcome(stats, explained, None, drawn, fresh_sampling_time)
+        return UpdateOutcome(stats, explained, None, drawn, draws.sampling_time)
     run.load_learned_state(before)
     run.nonfinite_batches += 1
     return UpdateOutcome(stats, explained, f"warning: {label}: the update made the {', '.join(broken)} "
                                            "non-finite; restored the parameters from before it",
-                         drawn, fresh_sampling_time)
+                         drawn, draws.sampling_time)
 
 
 def evaluate_if_due(run: Run) -> float:

@@ -15,7 +15,8 @@ per inner step. All of them read the iteration's batch only, through `BatchGradi
                        SARAH step (PAGE, Li et al. 2021; PAGE-PG, Gargiani et al. 2022).
 
 The fresh-sample estimators (svrpo/fresh/: SVRPG, SRVR-PG, STORM-PG, fresh SGD) are registered
-here too; their inner steps read fresh batches drawn with w_j, not mini-batches of this batch.
+here too; their inner steps j >= 1 read batches drawn with w_j (svrpo/core/step_rows.FreshDraws),
+not mini-batches of this batch.
 
 `ESTIMATORS` maps each config value of `estimator` to the factory that builds its part; a new
 estimator is a class and one line there (plus its config value). A user's estimator is any
@@ -255,7 +256,7 @@ ESTIMATORS: dict[str, Callable[[Config, RandomStreams], GradientEstimator]] = {
     "sarah": lambda config, streams: SarahGradient(),
     "storm": lambda config, streams: StormGradient(config.storm_momentum),
     "page": lambda config, streams: PageGradient(config.page_probability, streams.generator("page")),
-    # Fresh samples in the inner loop (svrpo/fresh/; run by svrpo.fresh.loop).
+    # Fresh samples in the inner loop (svrpo/fresh/; their rows: svrpo.core.step_rows.FreshDraws).
     "svrpg": lambda config, streams: SvrpgGradient(),
     "srvrpg": lambda config, streams: SrvrpgGradient(),
     "stormpg": lambda config, streams: StormPgGradient(config.storm_momentum),

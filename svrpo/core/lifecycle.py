@@ -2,7 +2,7 @@
 stopping rule): built once per run from the config, started at every outer iteration, and
 saved and restored with the run's checkpoints.
 
-The update calls these three methods on every part alike, so a new part with state (or with
+The update calls these methods on every part alike, so a new part with state (or with
 nothing to save) needs no edit in the update, the run or the checkpoint. A part that draws
 random numbers takes a named stream from the run's allocator (svrpo/core/streams.py) when it is
 built; the allocator saves that stream, so the part's own state_dict stays empty.
@@ -23,6 +23,10 @@ class Part:
     def start(self, gradients: BatchGradients) -> None:
         """Called at the snapshot w~ of every outer iteration, before the first inner step
         (`gradients` holds the iteration's batch, policy and g~)."""
+
+    def after_step(self, accepted: bool) -> None:
+        """Called after every inner step with whether its line search accepted a trial (False
+        for a skipped step), for a part whose next step depends on it (the budgeted anchor)."""
 
     def state_dict(self) -> dict[str, Any]:
         """What must survive a checkpoint between two outer iterations (tensors and plain values)."""

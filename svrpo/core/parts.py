@@ -114,6 +114,12 @@ class UpdateParts:
         for part in self.lifecycle().values():
             part.start(gradients)
 
+    def after_step(self, accepted: bool) -> None:
+        """Tell the parts whether the inner step just run accepted a trial (the KL anchor: the
+        budgeted one centres its next ball on the iterate once a step is accepted; the stopping
+        rule is asked separately, stop(accepted))."""
+        self.kl_anchor.after_step(accepted)
+
     def state_dict(self) -> dict[str, dict[str, Any]]:
         return {kind: part.state_dict() for kind, part in self.lifecycle().items()}
 

@@ -2,7 +2,19 @@
 
 The parts (estimator, direction metric, KL anchor, stopping rule) arrive built, in an
 `UpdateParts` (svrpo/core/parts.py); TRPO is the same function with the full-gradient estimator,
-J = 1 and nu = 1. The function returns its statistics; only the training loop logs them.
+J = 1 and nu = 1. Where each step's rows come from (mini-batches of the snapshot batch, or steps
+drawn with the iterate w_j for the fresh-sample estimators) is the source chosen with the
+estimator (svrpo/core/step_rows.py); the steps themselves are the same. The function returns
+its statistics; only the training loop logs them.
+
+With fresh draws: step 0 is the snapshot step (g~ on the N steps); at each step j >= 1 the B
+drawn steps are what the step reads: the estimator's importance-weighted correction, the Fisher
+product and the line search, whose surrogate is the ratio pi_w / pi_{w_j} (or log pi_w) times A
+on them and whose KL bounds are the anchor's on them; a ball around the sampling policy pi_{w~}
+(the iteration's budget with `kl_anchor budgeted`) is also checked on the N snapshot states,
+where progress.csv's mean_kl is measured: B fresh states alone estimate it too noisily (measured
+on Hopper at the modern scale with B = 512 and a budget of 0.04: a mean_kl of 0.045-0.086 on the
+snapshot states without this check). An iteration then samples between N and N + (J - 1) B steps.
 """
 
 from __future__ import annotations
@@ -17,6 +29,7 @@ from svrpo.config import Surrogate
 from svrpo.core.estimators import VarianceDiagnostic
 from svrpo.core.objectives import SurrogateBatch, per_sample_surrogate
 from svrpo.core.parts import UpdateParts
+from svrpo.core.step_rows import DrawWithIterate, draw_rows, step_rows_for
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
 from svrpo.trust_region.anchors import KlBound
@@ -126,13 +139,17 @@ def kl_divisor(policy: GaussianMlpPolicy, kl_per_action_dimension: bool) -> int:
 
 
 class FullBatchEvaluator:
-    """U(w) and mean KL(anchor || pi_w) on the full batch at the policy's current w, from one
-    forward pass of the network (values only, GaussianMlpPolicy.activations). The KL is summed
-    over action dimensions, or averaged over them with kl_per_action_dimension."""
+    """U(w) and mean KL(anchor || pi_w) on all rows of one batch at the policy's current w, from
+    one forward pass of the network (values only, GaussianMlpPolicy.activations). The KL is summed
+    over action dimensions, or averaged over them with kl_per_action_dimension.
+
+    `snapshot`: the snapshot rows' evaluator when `batch` holds rows drawn inside the loop; the
+    balls of a bound around the sampling policy are then measured there too (KlBound's rows).
+    """
 
     def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate,
-                 kl_per_action_dimension: bool = False) -> None:
-        self.policy, self.batch, self.kind = policy, batch, kind
+                 kl_per_action_dimension: bool = False, snapshot: FullBatchEvaluator | None = None) -> None:
+        self.policy, self.batch, self.kind, self.snapshot = policy, batch, kind, snapshot
         self.kl_per_action_dimension = kl_per_action_dimension
         self.kl_divisor = kl_divisor(policy, kl_per_action_dimension)
         self.outside_further_balls = 0
@@ -141,7 +158,7 @@ class FullBatchEvaluator:
         return self.policy.activations(self.batch.observations)[-1]
 
     def objective(self, mean: torch.Tensor | None = None) -> float:
-        """U(w) = mean_t U_t(w) on the full batch (mean: the network's output, if already known)."""
+        """U(w) = mean_t U_t(w) on the batch (mean: the network's output, if already known)."""
         with torch.no_grad():
             mean = self.mean() if mean is None else mean
             log_prob = gaussian_log_prob(self.batch.actions, mean, self.policy.log_std)
@@ -156,11 +173,20 @@ class FullBatchEvaluator:
             log_std = self.policy.log_std.expand_as(mean)
             return float(gaussian_kl(anchor_mean, anchor_log_std, mean, log_std).mean()) / self.kl_divisor
 
+    def sampling_kl(self) -> float:
+        """Mean KL(pi_old || pi_w) on the batch, pi_old the policy that sampled the iteration."""
+        return self.kl(self.batch.old_mean, self.batch.old_log_std.expand_as(self.batch.old_mean))
+
     def objective_and_kl(self, bound: KlBound) -> Callable[[], tuple[float, float]]:
-        """The line search's evaluate(): () -> (U(w), KL(anchor || pi_w)), one forward pass. A
-        trial outside one of bound.also_within's balls reads as KL = inf (rejected), and is
-        counted in `outside_further_balls`."""
+        """The line search's evaluate(): () -> (U(w), KL(anchor || pi_w)), one forward pass.
+
+        The one place a trial is checked against the whole trust region: a trial outside one of
+        bound.also_within's balls, or (with `snapshot`) farther than bound.sampling_radius() from
+        pi_old on the snapshot rows, reads as KL = inf (rejected) and is counted in
+        `outside_further_balls`; the line search compares the anchor's KL with bound.radius.
+        """
         anchor_mean, anchor_log_std = bound.anchor
+        sampling_radius = bound.sampling_radius() if self.snapshot is not None else None
 
         def evaluate() -> tuple[float, float]:
             mean = self.mean()
@@ -170,16 +196,33 @@ class FullBatchEvaluator:
                     self.outside_further_balls += 1
                     kl = math.inf
                     break
+            if (self.snapshot is not None and sampling_radius is not None and math.isfinite(kl)
+                    and not self.snapshot.sampling_kl() <= sampling_radius):
+                self.outside_further_balls += 1
+                kl = math.inf
             return self.objective(mean), kl
 
         return evaluate
 
 
-def draw_rows(count: int, size: int, generator: torch.Generator) -> torch.Tensor:
-    """`size` distinct row indices out of `count`, uniformly (all rows, in order, if size >= count)."""
-    if size >= count:
-        return torch.arange(count)
-    return torch.randperm(count, generator=generator)[:size]
+@dataclass(frozen=True)
+class InnerStepRecord:
+    """What the optional observer of update_policy sees after each inner step."""
+
+    step: int
+    """j, 0-based."""
+    estimate: torch.Tensor
+    """The estimator's gradient g_j at w_j (flat)."""
+    direction: torch.Tensor | None
+    """The metric's direction s_j (after CG); None when the step was skipped before it (a
+    non-finite gradient)."""
+    accepted: bool
+    """Whether the line search accepted a trial (False for a skipped step)."""
+
+
+StepObserver = Callable[[InnerStepRecord], None]
+"""Called once per inner step, after its line search (e.g. a gradient-error tool replaying the loop);
+it must not move the policy or draw from the update's generators."""
 
 
 def update_policy(
@@ -188,52 +231,72 @@ def update_policy(
     parts: UpdateParts,
     generator: torch.Generator,
     probe_generator: torch.Generator,
+    draw: DrawWithIterate | None = None,
+    observer: StepObserver | None = None,
 ) -> UpdateStats:
     """Run the J inner steps in place on `policy` (whose parameters are w~ on entry).
 
     `generator` draws the mini-batches and Fisher subsets (so two estimators run with the same
     seed see the same data); `probe_generator` draws only the variance-probe mini-batches, so
-    switching the probe off does not change training.
+    switching the probe off does not change training. `draw` samples steps with the current
+    iterate (needed by a fresh-sample estimator, svrpo/core/step_rows.FreshDraws); `observer`
+    sees every step (InnerStepRecord). surrogate_improvement and mean_kl are measured on the
+    snapshot batch whichever rows the steps read.
     """
-    loop, estimator = parts.loop, parts.estimator
-    count = len(batch)
+    loop = parts.loop
     gradients = parts.gradients(policy, batch, loop.surrogate)  # g~ at w~, once
     parts.start(gradients)
-    fisher_rows = max(1, int(round(loop.fisher_subsample * count)))
-    minibatch_rows = loop.minibatch_size if estimator.uses_minibatches else count
+    source = step_rows_for(parts.estimator, policy, batch, gradients, loop.minibatch_size,
+                           loop.importance_weight_clip, generator, draw)
 
-    full_batch = FullBatchEvaluator(policy, batch, loop.surrogate, loop.kl_per_action_dimension)
-    start_objective = step_objective = full_batch.objective()
+    snapshot = FullBatchEvaluator(policy, batch, loop.surrogate, loop.kl_per_action_dimension)
+    start_objective = snapshot.objective()
+    # U(w_j) on the snapshot rows, carried from step to step while the steps read those rows
+    # (a rejected search restores w exactly); None once a step read other rows.
+    snapshot_objective: float | None = start_objective
     tally = InnerLoopTally()
 
     for step in range(loop.inner_steps):
         tally.attempted += 1
-        indices = draw_rows(count, minibatch_rows, generator)
-        fisher_indices = draw_rows(count, fisher_rows, generator)
-        gradient = estimator.estimate(indices)
-        step_result = trust_region_step(policy, batch, full_batch, gradient,
-                                        batch.observations[fisher_indices], parts, step_objective, tally)
-        if step_result is None:
+        step_input = source.step(step)
+        rows = step_input.rows
+        if step_input.snapshot_rows and snapshot_objective is not None:
+            evaluator, step_objective = snapshot, snapshot_objective
+        else:
+            evaluator = snapshot if step_input.snapshot_rows else FullBatchEvaluator(
+                policy, rows, loop.surrogate, loop.kl_per_action_dimension, snapshot)
+            step_objective = evaluator.objective()  # U_j(w_j) on the step's rows
+        fisher_rows = max(1, int(round(loop.fisher_subsample * len(rows))))
+        fisher_indices = draw_rows(len(rows), fisher_rows, generator)
+        outcome = trust_region_step(policy, rows, evaluator, step_input.gradient,
+                                    rows.observations[fisher_indices], parts, step_objective, tally)
+        accepted = outcome.result is not None and outcome.result.accepted
+        parts.after_step(accepted)
+        if observer is not None:
+            observer(InnerStepRecord(step, step_input.gradient, outcome.direction, accepted))
+        if outcome.result is None:
             continue
-        result, budget_rejected = step_result
-        step_objective = result.objective
-        if parts.stopping_rule.stop(result.accepted) and step < loop.inner_steps - 1:
+        if step_input.snapshot_rows:
+            snapshot_objective = outcome.result.objective
+        elif accepted:
+            snapshot_objective = None
+        if parts.stopping_rule.stop(outcome.result.accepted) and step < loop.inner_steps - 1:
             tally.stopped_early = 1
-            tally.stopped_by_budget = int(budget_rejected)
+            tally.stopped_by_budget = int(outcome.budget_rejected)
             break
 
     # The probe looks at the last inner iterate: the farthest the loop went from w~, where the
     # control variate is weakest. With no accepted step that is w~ itself (SVRG's variance is
     # exactly 0 there), which says nothing, so the probe is left out.
     diagnostic = NO_DIAGNOSTIC
-    if tally.accepted and loop.variance_probe_batches > 0 and estimator.uses_minibatches:
-        probes = [draw_rows(count, minibatch_rows, probe_generator)
-                  for _ in range(loop.variance_probe_batches)]
-        diagnostic = parts.variance_probe(estimator, gradients, probes)
+    if tally.accepted and loop.variance_probe_batches > 0:
+        probes = source.probe_minibatches(loop.variance_probe_batches, probe_generator)
+        if probes:
+            diagnostic = parts.variance_probe(parts.estimator, gradients, probes)
 
-    old_log_std = batch.old_log_std.expand_as(batch.old_mean)
-    final_kl = full_batch.kl(batch.old_mean, old_log_std)
-    return tally.stats(step_objective - start_objective, final_kl, diagnostic)
+    end_objective = snapshot.objective() if snapshot_objective is None else snapshot_objective
+    return tally.stats(end_objective - start_objective, snapshot.sampling_kl(), diagnostic,
+                       source.drawn_steps)
 
 
 NO_DIAGNOSTIC = VarianceDiagnostic(math.nan, math.nan, math.nan)
@@ -252,6 +315,19 @@ def damped_kl_hessian(parts: UpdateParts, policy: GaussianMlpPolicy, observation
     return lambda vector: fisher(vector) / dimensions + damping * vector
 
 
+@dataclass(frozen=True)
+class StepOutcome:
+    """What trust_region_step did."""
+
+    result: LineSearchResult | None
+    """The line search's result; None when the step was skipped (a non-finite gradient, or no
+    usable curvature)."""
+    direction: torch.Tensor | None
+    """The metric's direction (None when the gradient was not finite)."""
+    budget_rejected: bool = False
+    """Whether a trial left a further ball of the bound (the budget)."""
+
+
 def trust_region_step(
     policy: GaussianMlpPolicy,
     batch: SurrogateBatch,
@@ -261,20 +337,18 @@ def trust_region_step(
     parts: UpdateParts,
     step_objective: float,
     tally: InnerLoopTally,
-) -> tuple[LineSearchResult, bool] | None:
+) -> StepOutcome:
     """One inner step from the policy's current w_j along the direction of `gradient`.
 
     The metric turns the gradient into a direction (CG against the Fisher of
     `fisher_observations` at w_j), the KL anchor gives this step's bound on `batch`, and the
     line search backtracks from the quadratic model's step length, judged by `evaluator` (U and
-    KL on `batch`). None when the step is skipped (a non-finite gradient, or no usable
-    curvature); otherwise (the search's result, whether a trial left a further ball of the
-    bound, i.e. the budget). Every count goes to `tally`; the policy is moved in place.
+    KL on `batch`). Every count goes to `tally`; the policy is moved in place.
     """
     loop = parts.loop
     if not torch.isfinite(gradient).all():
         tally.skipped_gradient += 1
-        return None
+        return StepOutcome(None, None)
     fisher_product = damped_kl_hessian(parts, policy, fisher_observations)
     direction, cg = parts.metric.direction(gradient, fisher_product)
     if parts.observe_step is not None:  # the gradient-error tool's view of the step (one place)
@@ -286,7 +360,7 @@ def trust_region_step(
     step_length = max_step_length(direction, fisher_product, bound.radius)
     if step_length is None or not torch.isfinite(direction).all():
         tally.skipped_curvature += 1
-        return None
+        return StepOutcome(None, direction)
 
     full_step = step_length * direction
     rejections_before = evaluator.outside_further_balls
@@ -308,4 +382,4 @@ def trust_region_step(
     if result.accepted:
         tally.accepted += 1
         tally.expected += float(gradient.dot(full_step)) * result.step_fraction
-    return result, rejected > 0
+    return StepOutcome(result, direction, rejected > 0)

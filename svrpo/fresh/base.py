@@ -32,10 +32,12 @@ class FreshGradientEstimator(Protocol):
 
 
 class FreshEstimator(Part):
-    """Base of the fresh-sample estimators. `uses_minibatches`, `estimate` and `peek` exist so
-    that the part has the GradientEstimator shape; the batch-reusing loop must not call them."""
+    """Base of the fresh-sample estimators: subclass it and write `combine` (one file, plus one
+    line in svrpo.core.estimators.ESTIMATORS and the name in config.FreshEstimatorName). The
+    inner loop gives them the rows svrpo.core.step_rows.FreshDraws draws, as FreshGradients."""
 
     uses_minibatches = True
+    """The fresh batches are of B = minibatch_size steps."""
     path_dependent = True
 
     def __init__(self) -> None:
@@ -56,16 +58,28 @@ class FreshEstimator(Part):
         return self._previous
 
     def combine(self, fresh: FreshGradients) -> torch.Tensor:
+        """v_j from the fresh batch's gradients and the record (no state changes)."""
         raise NotImplementedError
 
     def estimate_fresh(self, fresh: FreshGradients) -> torch.Tensor:
+        """v_j at step j >= 1; a finite one is recorded as the previous point for the next step."""
         value = self.combine(fresh)
         if bool(torch.isfinite(value).all()):
             self._previous = (fresh.current_point(), value)
         return value
 
-    def estimate(self, indices: torch.Tensor) -> torch.Tensor:
-        raise TypeError(f"{type(self).__name__} draws fresh samples: it runs in svrpo.fresh.loop, "
-                        "not on mini-batches of the snapshot batch")
+    def estimate(self, rows: FreshGradients | torch.Tensor) -> torch.Tensor:
+        """estimate_fresh under the name every estimator answers to. `rows` must be the
+        FreshGradients of a fresh batch: row indices of the snapshot batch are refused."""
+        return self.estimate_fresh(self._fresh(rows))
 
-    peek = estimate
+    def peek(self, rows: FreshGradients | torch.Tensor) -> torch.Tensor:
+        """The estimate estimate(rows) would return, without recording it."""
+        return self.combine(self._fresh(rows))
+
+    def _fresh(self, rows: FreshGradients | torch.Tensor) -> FreshGradients:
+        if not isinstance(rows, FreshGradients):
+            raise TypeError(f"{type(self).__name__} draws fresh samples: it estimates from the "
+                            "FreshGradients of steps drawn with w_j (svrpo.core.step_rows.FreshDraws), "
+                            "not from row indices of the snapshot batch")
+        return rows

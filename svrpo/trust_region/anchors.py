@@ -11,14 +11,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 import torch
 
 from svrpo.config import Config
 from svrpo.core.lifecycle import Part
 from svrpo.core.objectives import SurrogateBatch
-from svrpo.models.parameters import flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
 
 if TYPE_CHECKING:
@@ -27,21 +26,40 @@ if TYPE_CHECKING:
 
 Gaussian = tuple[torch.Tensor, torch.Tensor]
 """(mean, log_std) per batch row, both (N, act_dim)."""
+AnchorCentre = Literal["sampling", "iterate"]
 
 
 @dataclass(frozen=True)
 class KlBound:
-    """The trust region of one inner step: mean KL(anchor || pi_w) <= radius on the batch, and
+    """The trust region of one inner step: mean KL(anchor || pi_w) <= radius, and
     mean KL(a || pi_w) <= r for every further ball (a, r) in `also_within`.
 
     The radius sets both the step length of the quadratic KL model (beta = sqrt(2 radius / s^T F s))
     and the line search's bound; a trial outside a further ball is rejected like one outside the
     radius (the budgeted anchor's total KL from the sampling policy is such a ball).
+
+    Which rows each ball is measured on: every ball on the rows the anchor was given (the
+    step's rows: the snapshot batch, or a batch drawn in the loop with w_j). A ball centred on
+    the sampling policy pi_old (the anchor when `anchor_centre` is "sampling", and every ball of
+    `also_within`) is a bound on pi_old itself, so when the step's rows were drawn in the loop it
+    is measured on the iteration's snapshot rows as well (pi_old's means there are the snapshot
+    batch's old_mean); a ball around the iterate pi_{w_j} only on the step's rows, where its
+    means were computed. update.FullBatchEvaluator.objective_and_kl checks them all.
     """
 
     anchor: Gaussian
     radius: float
     also_within: tuple[tuple[Gaussian, float], ...] = ()
+    """Further balls around the sampling policy pi_old, their means on the same rows as `anchor`."""
+    anchor_centre: AnchorCentre = "sampling"
+    """The policy `anchor` holds the means of: the sampling policy pi_old or the iterate pi_{w_j}."""
+
+    def sampling_radius(self) -> float | None:
+        """The tightest radius of the bound's balls around pi_old (None: it has none)."""
+        radii = [radius for _, radius in self.also_within]
+        if self.anchor_centre == "sampling":
+            radii.append(self.radius)
+        return min(radii, default=None)
 
 
 @runtime_checkable
@@ -54,6 +72,10 @@ class KlAnchor(Protocol):
         ...
 
     def start(self, gradients: BatchGradients) -> None: ...
+
+    def after_step(self, accepted: bool) -> None:
+        """Told after every inner step whether its line search accepted a trial."""
+        ...
 
     def state_dict(self) -> dict[str, Any]: ...
 
@@ -80,7 +102,8 @@ class IterateAnchor(Part):
 
     def bound(self, batch: SurrogateBatch, policy: GaussianMlpPolicy) -> KlBound:
         mean = policy.activations(batch.observations)[-1]
-        return KlBound((mean, policy.log_std.detach().clone().expand_as(mean)), self.max_kl)
+        return KlBound((mean, policy.log_std.detach().clone().expand_as(mean)), self.max_kl,
+                       anchor_centre="iterate")
 
 
 def budgeted_step_radius(budget: float, inner_steps: int) -> float:
@@ -116,19 +139,22 @@ class BudgetedAnchor(Part):
         if not (0 < self.step_radius < math.inf and 0 < self.budget < math.inf):
             raise ValueError(f"budgeted anchor needs finite positive radii, got step {self.step_radius}, "
                              f"budget {self.budget}")
-        self._snapshot: torch.Tensor | None = None
+        self._moved = False
 
     def start(self, gradients: BatchGradients) -> None:
-        self._snapshot = gradients.current_point()  # w~
+        self._moved = False  # at w~
+
+    def after_step(self, accepted: bool) -> None:
+        self._moved = self._moved or accepted  # a rejected search restores w exactly
 
     def bound(self, batch: SurrogateBatch, policy: GaussianMlpPolicy) -> KlBound:
         sampling = (batch.old_mean, batch.old_log_std.expand_as(batch.old_mean))
-        # The line search restores w exactly when it fails, so "no step accepted" is w == w~.
-        if self._snapshot is None or torch.equal(flat_parameters(policy), self._snapshot):
+        if not self._moved:  # w_j = w~: both balls share their centre
             return KlBound(sampling, min(self.step_radius, self.budget))
         mean = policy.activations(batch.observations)[-1]
         iterate = (mean, policy.log_std.detach().clone().expand_as(mean))
-        return KlBound(iterate, self.step_radius, also_within=((sampling, self.budget),))
+        return KlBound(iterate, self.step_radius, also_within=((sampling, self.budget),),
+                       anchor_centre="iterate")
 
 
 KL_ANCHORS: dict[str, Callable[[Config, RandomStreams], KlAnchor]] = {
