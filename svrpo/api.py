@@ -37,7 +37,7 @@ def train(config: Config, run_dir: str | os.PathLike[str], resume: bool = False,
     from svrpo.sampling.envs import env_id_of
 
     if estimator is not None:
-        check_estimator(estimator)  # before anything is written
+        check_estimator(estimator, config)  # before anything is written
     if env is not None:
         config = config.replace(env_id=env_id_of(env))
     path = Path(run_dir)

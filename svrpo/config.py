@@ -14,9 +14,9 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
-Estimator = Literal["full", "sgd", "svrg", "sarah", "storm", "page",
-                    "svrpg", "srvrpg", "stormpg", "fresh_sgd"]
-FRESH_ESTIMATORS: tuple[str, ...] = ("svrpg", "srvrpg", "stormpg", "fresh_sgd")
+FreshEstimatorName = Literal["svrpg", "srvrpg", "stormpg", "fresh_sgd"]
+Estimator = Literal["full", "sgd", "svrg", "sarah", "storm", "page", FreshEstimatorName]
+FRESH_ESTIMATORS: tuple[str, ...] = typing.get_args(FreshEstimatorName)
 """The estimators whose inner steps j >= 1 draw m fresh steps with w_j (svrpo/fresh/): an
 iteration then samples N + (J - 1) m steps (Config.steps_per_iteration)."""
 Metric = Literal["fisher", "identity"]

@@ -38,6 +38,7 @@ from svrpo.core.estimators import (
 from svrpo.core.objectives import SurrogateBatch
 from svrpo.core.stopping import STOPPING_RULES, StoppingRule
 from svrpo.core.streams import RandomStreams
+from svrpo.fresh.base import FreshGradientEstimator
 from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.trust_region.anchors import KL_ANCHORS, KlAnchor
 from svrpo.trust_region.line_search import LineSearchResult, backtracking_line_search
@@ -143,9 +144,17 @@ def estimator_for(config: Config, streams: RandomStreams | None = None) -> Gradi
     return estimator
 
 
-def check_estimator(estimator: object) -> None:
-    """TypeError naming what is missing if `estimator` lacks a GradientEstimator member."""
+def check_estimator(estimator: object, config: Config | None = None) -> None:
+    """TypeError naming what is missing if `estimator` lacks a GradientEstimator member;
+    ValueError if it draws fresh steps and `config.estimator` does not, or the other way round
+    (the rows it reads follow from the estimator, the run's step budget from the config)."""
     if isinstance(estimator, GradientEstimator):
+        draws = isinstance(estimator, FreshGradientEstimator)  # step_rows.step_rows_for's choice
+        if config is not None and draws != config.fresh_samples:
+            raise ValueError(f"estimator {type(estimator).__name__} {'draws' if draws else 'does not draw'} "
+                             f"fresh steps but config.estimator {config.estimator!r} "
+                             f"{'does not' if draws else 'does'}: the run's step budget would be wrong; "
+                             "set config.estimator to one of the same family")
         return
     members = ("uses_minibatches", "path_dependent", "start", "estimate", "peek", "state_dict",
                "load_state_dict")
@@ -164,7 +173,7 @@ def update_parts(config: Config, estimator: GradientEstimator | None = None,
     stream from it); a fresh one for `config.seed` if not given.
     """
     if estimator is not None:
-        check_estimator(estimator)
+        check_estimator(estimator, config)
     streams = streams or RandomStreams(config.seed)
     loop = InnerLoop(
         inner_steps=config.inner_steps, minibatch_size=config.minibatch_size,
