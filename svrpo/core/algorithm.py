@@ -270,14 +270,14 @@ def update_and_refit(run: Run, batch: Batch, prepared: PreparedBatch, label: str
     before = run.learned_state()
     draws = DrawsWithIterate(run, batch)
     stats = update_policy(run.policy, data, run.parts, run.generator, run.probe_generator, draw=draws)
-    fresh = draws.drawn
+    in_loop = draws.drawn  # (batch, value targets) drawn inside the inner loop, if any
     explained = explained_variance(values, targets)  # of the values the advantages used
     # The normaliser and the critic learn from every step sampled in the iteration: the
-    # snapshot batch, then the fresh batches in the order they were drawn, in one update/fit
-    # (the fresh steps' targets come from the critic before this fit, as the snapshot's do).
-    observations = torch.cat([batch.observations, *(b.observations for b, _ in fresh)])
-    timesteps = torch.cat([batch.timesteps, *(b.timesteps for b, _ in fresh)])
-    all_targets = torch.cat([targets, *(t for _, t in fresh)])
+    # snapshot batch, then the batches drawn in the loop in their order, in one update/fit
+    # (their targets come from the critic before this fit, as the snapshot's do).
+    observations = torch.cat([batch.observations, *(b.observations for b, _ in in_loop)])
+    timesteps = torch.cat([batch.timesteps, *(b.timesteps for b, _ in in_loop)])
+    all_targets = torch.cat([targets, *(t for _, t in in_loop)])
     if run.normalizer is not None:
         run.normalizer.update(observations)
     # Refit after the update (rllab order), in the coordinates of the next prediction: the
@@ -286,7 +286,7 @@ def update_and_refit(run: Run, batch: Batch, prepared: PreparedBatch, label: str
     # update_policy guards its own steps; this catches whatever slips through (and the
     # baseline's and normaliser's updates), undoing the whole update rather than patching it.
     broken = _nonfinite_learned_state(run)
-    drawn = tuple(b for b, _ in fresh)
+    drawn = tuple(b for b, _ in in_loop)
     if not broken:
         return UpdateOutcome(stats, explained, None, drawn, draws.sampling_time)
     run.load_learned_state(before)
