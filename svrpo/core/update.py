@@ -260,11 +260,12 @@ def update_policy(
         tally.attempted += 1
         step_input = source.step(step)
         rows = step_input.rows
-        if step_input.snapshot_rows and snapshot_objective is not None:
-            evaluator, step_objective = snapshot, snapshot_objective
+        if step_input.snapshot_rows:
+            evaluator = snapshot
+            step_objective = snapshot.objective() if snapshot_objective is None else snapshot_objective
         else:
-            evaluator = snapshot if step_input.snapshot_rows else FullBatchEvaluator(
-                policy, rows, loop.surrogate, loop.kl_per_action_dimension, snapshot)
+            evaluator = FullBatchEvaluator(policy, rows, loop.surrogate, loop.kl_per_action_dimension,
+                                           snapshot)
             step_objective = evaluator.objective()  # U_j(w_j) on the step's rows
         fisher_rows = max(1, int(round(loop.fisher_subsample * len(rows))))
         fisher_indices = draw_rows(len(rows), fisher_rows, generator)
