@@ -1,7 +1,7 @@
 """The one inner loop (svrpo/core/update.py) and where its steps' rows come from
-(svrpo/core/step_rows.py): the source chosen with the estimator, the per-step observer, the KL
-bound's balls and the rows they are measured on, the parts told whether their step was accepted,
-and a fresh-family estimator that is one class."""
+(svrpo/core/step_rows.py): the source chosen with the estimator, the KL bound's balls and the
+rows they are measured on, the parts told whether their step was accepted, and a fresh-family
+estimator that is one class."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ import copy
 import dataclasses
 import re
 from pathlib import Path
-from typing import Any
 
 import pytest
 import torch
@@ -19,17 +18,15 @@ from svrpo.config import FRESH_ESTIMATORS, make_preset
 from svrpo.core.algorithm import build_run, run_iteration
 from svrpo.core.estimators import ESTIMATORS, SvrgGradient
 from svrpo.core.gradients import BatchGradients
-from svrpo.core.parts import update_parts
 from svrpo.core.step_rows import FreshDraws, SnapshotMinibatches, step_rows_for
 from svrpo.core.streams import RandomStreams
-from svrpo.core.update import InnerStepRecord, update_policy
 from svrpo.fresh.base import FreshEstimator
 from svrpo.fresh.gradients import FreshGradients
 from svrpo.fresh.svrpg import SvrpgGradient
 from svrpo.models.parameters import flat_parameters
 from svrpo.trust_region.anchors import BudgetedAnchor, IterateAnchor, SamplingAnchor
 from tests.test_fresh import ITERATE, SNAPSHOT, LinearGaussian, _estimator, _Snapshot, _tiny, fresh_batch
-from tests.test_update_reference import entry_policy, make_config, sampled_rows, surrogate_batch
+from tests.test_update_reference import entry_policy, sampled_rows, surrogate_batch
 
 PACKAGE = Path(svrpo.__file__).parent
 
@@ -38,35 +35,6 @@ def test_the_inner_steps_are_written_once_in_the_package() -> None:
     loops = [(path.relative_to(PACKAGE).as_posix(), line) for path in sorted(PACKAGE.rglob("*.py"))
              for line in path.read_text().splitlines() if re.search(r"for step in range\(", line)]
     assert loops == [("core/update.py", "    for step in range(loop.inner_steps):")]
-
-
-def _update(config: svrpo.Config, observer: Any = None) -> tuple[Any, torch.Tensor, torch.Tensor]:
-    """update_policy on the reference tests' w~ and batch: (stats, w~, w after the update)."""
-    policy = entry_policy(0)
-    start = flat_parameters(policy)
-    batch = surrogate_batch(sampled_rows(start, 1))
-    stats = update_policy(policy, batch, update_parts(config), torch.Generator().manual_seed(2),
-                          torch.Generator().manual_seed(3), observer=observer)
-    return stats, start, flat_parameters(policy)
-
-
-@pytest.mark.parametrize("metric", ["fisher", "identity"])
-def test_the_observer_sees_every_step_and_changes_nothing(metric: str) -> None:
-    config = make_config(estimator="svrg", metric=metric, inner_stop="all")
-    records: list[InnerStepRecord] = []
-    stats, start, end = _update(config, records.append)
-    plain_stats, _, plain_end = _update(config)
-    assert repr(stats) == repr(plain_stats) and torch.equal(end, plain_end)  # nan-aware
-    assert [r.step for r in records] == list(range(config.inner_steps))
-    assert sum(r.accepted for r in records) == stats.inner_steps_accepted > 0
-    # Step 0 is at w~, where SVRG's estimate is g~ exactly.
-    policy = entry_policy(0)
-    snapshot_gradient = BatchGradients(policy, surrogate_batch(sampled_rows(start, 1)), config.surrogate)
-    assert torch.equal(records[0].estimate, snapshot_gradient.snapshot_full)
-    for record in records:
-        assert record.direction is not None and torch.isfinite(record.direction).all()
-        # The identity metric's direction is the estimate; the Fisher's is CG's solve, another one.
-        assert torch.equal(record.direction, record.estimate) == (metric == "identity")
 
 
 def test_the_rows_source_follows_the_estimator() -> None:

@@ -5,7 +5,7 @@ At a policy w~ (a checkpoint), the tool draws a large reference batch of M steps
 batch of N steps with pi_{w~}, both prepared as training prepares a batch (GAE with the run's
 baseline, advantages standardised over the batch, the run's observation normaliser). It then
 replays one outer iteration of an estimator's inner loop on the ordinary batch with the library's
-own loop (svrpo.core.update / svrpo.fresh.loop, observed through UpdateParts.observe_step) and, at
+own loop (svrpo.core.update.update_policy, observed through UpdateParts.observe_step) and, at
 every inner step j, compares three vectors at the iterate w_j:
 
 * g_j    the step's gradient estimate (what the estimator returned);
@@ -40,7 +40,7 @@ import io
 import json
 import math
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -50,10 +50,9 @@ import torch
 from svrpo.config import Config, ConfigError, Surrogate
 from svrpo.core.objectives import SurrogateBatch, surrogate
 from svrpo.core.parts import UpdateParts
+from svrpo.core.step_rows import DrawWithIterate
 from svrpo.core.update import update_policy
 from svrpo.errors import CheckpointError
-from svrpo.fresh.base import FreshGradientEstimator
-from svrpo.fresh.loop import update_policy_fresh
 from svrpo.models.parameters import flat_gradient, flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.trust_region.metrics import MatVec
@@ -202,9 +201,6 @@ class StepErrors:
         return out
 
 
-FreshDraw = Callable[[], SurrogateBatch]
-
-
 def replay_errors(
     name: str,
     policy: GaussianMlpPolicy,
@@ -213,13 +209,13 @@ def replay_errors(
     reference_parts: int,
     parts: UpdateParts,
     generator: torch.Generator,
-    draw_fresh: FreshDraw | None = None,
+    draw_fresh: DrawWithIterate | None = None,
 ) -> list[StepErrors]:
     """Run one outer iteration of `parts`' inner loop on `batch` (in place on `policy`, which is w~
     on entry) with the library's loop, and return each step's errors.
 
-    A fresh-sample estimator (svrpo/fresh/) runs in update_policy_fresh and needs `draw_fresh`;
-    every other in update_policy. `generator` draws the mini-batches and Fisher subsets.
+    A fresh-sample estimator (svrpo/fresh/) needs `draw_fresh` (update_policy's `draw`).
+    `generator` draws the mini-batches and Fisher subsets.
     """
     kind = parts.loop.surrogate
     records: list[StepErrors] = []
@@ -235,12 +231,7 @@ def replay_errors(
                                   true.standard_error, flat_parameters(policy), gradient.detach().clone()))
 
     observed = replace(parts, observe_step=observe)
-    if isinstance(parts.estimator, FreshGradientEstimator):
-        if draw_fresh is None:
-            raise ValueError(f"{name} draws fresh samples: give draw_fresh")
-        update_policy_fresh(policy, batch, observed, generator, draw_fresh)
-    else:
-        update_policy(policy, batch, observed, generator, torch.Generator().manual_seed(0))
+    update_policy(policy, batch, observed, generator, torch.Generator().manual_seed(0), draw=draw_fresh)
     return records
 
 
@@ -410,9 +401,9 @@ def measure_gradient_error(
             if config.fresh_samples:
                 sampling_policy, scale = copy.deepcopy(run.policy), advantage_scale(run, raw_batch)
 
-                def draw_fresh(config: Config = config, sampling_policy: GaussianMlpPolicy = sampling_policy,
+                def draw_fresh(num_steps: int, sampling_policy: GaussianMlpPolicy = sampling_policy,
                                scale: tuple[torch.Tensor, torch.Tensor] = scale) -> SurrogateBatch:
-                    drawn = sample_frozen(run, config.minibatch_size)
+                    drawn = sample_frozen(run, num_steps)
                     return fresh_surrogate_batch(run, drawn, scale, sampling_policy).data
 
             steps += replay_errors(name, run.policy, batch, reference, reference_parts, parts,

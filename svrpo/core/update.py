@@ -205,26 +205,6 @@ class FullBatchEvaluator:
         return evaluate
 
 
-@dataclass(frozen=True)
-class InnerStepRecord:
-    """What the optional observer of update_policy sees after each inner step."""
-
-    step: int
-    """j, 0-based."""
-    estimate: torch.Tensor
-    """The estimator's gradient g_j at w_j (flat)."""
-    direction: torch.Tensor | None
-    """The metric's direction s_j (after CG); None when the step was skipped before it (a
-    non-finite gradient)."""
-    accepted: bool
-    """Whether the line search accepted a trial (False for a skipped step)."""
-
-
-StepObserver = Callable[[InnerStepRecord], None]
-"""Called once per inner step, after its line search (e.g. a gradient-error tool replaying the loop);
-it must not move the policy or draw from the update's generators."""
-
-
 def update_policy(
     policy: GaussianMlpPolicy,
     batch: SurrogateBatch,
@@ -232,16 +212,15 @@ def update_policy(
     generator: torch.Generator,
     probe_generator: torch.Generator,
     draw: DrawWithIterate | None = None,
-    observer: StepObserver | None = None,
 ) -> UpdateStats:
     """Run the J inner steps in place on `policy` (whose parameters are w~ on entry).
 
     `generator` draws the mini-batches and Fisher subsets (so two estimators run with the same
     seed see the same data); `probe_generator` draws only the variance-probe mini-batches, so
     switching the probe off does not change training. `draw` samples steps with the current
-    iterate (needed by a fresh-sample estimator, svrpo/core/step_rows.FreshDraws); `observer`
-    sees every step (InnerStepRecord). surrogate_improvement and mean_kl are measured on the
-    snapshot batch whichever rows the steps read.
+    iterate (needed by a fresh-sample estimator, svrpo/core/step_rows.FreshDraws).
+    surrogate_improvement and mean_kl are measured on the snapshot batch whichever rows the
+    steps read.
     """
     loop = parts.loop
     gradients = parts.gradients(policy, batch, loop.surrogate)  # g~ at w~, once
@@ -273,8 +252,6 @@ def update_policy(
                                     rows.observations[fisher_indices], parts, step_objective, tally)
         accepted = outcome.result is not None and outcome.result.accepted
         parts.after_step(accepted)
-        if observer is not None:
-            observer(InnerStepRecord(step, step_input.gradient, outcome.direction, accepted))
         if outcome.result is None:
             continue
         if step_input.snapshot_rows:
@@ -323,8 +300,6 @@ class StepOutcome:
     result: LineSearchResult | None
     """The line search's result; None when the step was skipped (a non-finite gradient, or no
     usable curvature)."""
-    direction: torch.Tensor | None
-    """The metric's direction (None when the gradient was not finite)."""
     budget_rejected: bool = False
     """Whether a trial left a further ball of the bound (the budget)."""
 
@@ -349,7 +324,7 @@ def trust_region_step(
     loop = parts.loop
     if not torch.isfinite(gradient).all():
         tally.skipped_gradient += 1
-        return StepOutcome(None, None)
+        return StepOutcome(None)
     fisher_product = damped_kl_hessian(parts, policy, fisher_observations)
     direction, cg = parts.metric.direction(gradient, fisher_product)
     if parts.observe_step is not None:  # the gradient-error tool's view of the step (one place)
@@ -361,7 +336,7 @@ def trust_region_step(
     step_length = max_step_length(direction, fisher_product, bound.radius)
     if step_length is None or not torch.isfinite(direction).all():
         tally.skipped_curvature += 1
-        return StepOutcome(None, direction)
+        return StepOutcome(None)
 
     full_step = step_length * direction
     rejections_before = evaluator.outside_further_balls
@@ -383,4 +358,4 @@ def trust_region_step(
     if result.accepted:
         tally.accepted += 1
         tally.expected += float(gradient.dot(full_step)) * result.step_fraction
-    return StepOutcome(result, direction, rejected > 0)
+    return StepOutcome(result, rejected > 0)
