@@ -10,9 +10,10 @@ and older checkpoints are always left out. A finished run measured 651,353 bytes
 its checkpoint (figure1-modern/Ant-v5/svrpo/seed0: a 448,626-byte checkpoint) and 194,535
 without it.
 
-Copying the archive back into a sweep root (`cp -r ARCHIVE/. ROOT/`) lets a later `svrpo sweep`
-on a fresh machine skip the runs archived with their final checkpoint: the sweep counts a run
-as done only when that checkpoint is there, so one archived without it is trained again.
+A run is finished when its progress.csv holds every iteration its config asks for
+(svrpo.rundir.completion, the rule `svrpo sweep` uses too): copying the archive back into a sweep
+root (`cp -r ARCHIVE/. ROOT/`) lets a later `svrpo sweep` on a fresh machine skip its runs, with
+or without their checkpoint.
 
     python benchmarks/archive_runs.py /work/runs results/runs
     python benchmarks/archive_runs.py /work/runs results/runs --checkpoint 'figure1-modern/*/trpo/*'
@@ -37,23 +38,23 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
 from svrpo.config import Config  # noqa: E402
-from svrpo.experiments.jobs import completed_iterations  # noqa: E402
 from svrpo.rundir import checkpoint  # noqa: E402
+from svrpo.rundir.completion import ProgressError, is_finished  # noqa: E402
 
 KEPT = ("config.json", "run.json", "progress.csv", "train.log")
 
 
 def finished_runs(root: Path) -> list[Path]:
-    """Run directories under root whose progress.csv and final checkpoint are complete."""
+    """Run directories under root that are finished (svrpo.rundir.completion); ProgressError
+    for a progress.csv that training cannot have written."""
     runs = []
     for config_path in sorted(root.rglob("config.json")):
         run_dir = config_path.parent
         try:
             config = Config.from_json(config_path.read_text())
-        except ValueError:
+        except ValueError:  # not a config this version reads: not archived
             continue
-        final = checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations)
-        if final.is_file() and completed_iterations(run_dir) >= config.iterations:
+        if is_finished(run_dir, config):
             runs.append(run_dir)
     return runs
 
@@ -90,6 +91,12 @@ def archive_partial(root: Path, archive: Path) -> int:
     return len(runs)
 
 
+def _final_checkpoint(run_dir: Path) -> Path:
+    """Where the run's final checkpoint is (whether or not it is there)."""
+    config = Config.from_json((run_dir / "config.json").read_text())
+    return checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations)
+
+
 def keeps_checkpoint(relative: Path, patterns: list[str]) -> bool:
     """Whether the run at `relative` (its path under the root) matches a --checkpoint pattern."""
     return any(fnmatch.fnmatchcase(relative.as_posix(), pattern) for pattern in patterns)
@@ -107,8 +114,7 @@ def archive_finished(root: Path, archive: Path, patterns: list[str]) -> tuple[in
             if (run_dir / name).is_file():
                 shutil.copy2(run_dir / name, target / name)
         if keeps_checkpoint(relative, patterns):
-            config = Config.from_json((run_dir / "config.json").read_text())
-            final = checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations)
+            final = _final_checkpoint(run_dir)
             (target / "checkpoints").mkdir(exist_ok=True)
             shutil.copy2(final, target / "checkpoints" / final.name)
             kept += 1
@@ -131,11 +137,19 @@ def main() -> None:
         count = archive_partial(args.root, args.archive)
         print(f"archived {count} unfinished runs of {args.root} in {args.archive}")
         return
-    runs = [run_dir.relative_to(args.root) for run_dir in finished_runs(args.root)]
+    try:
+        runs = [run_dir.relative_to(args.root) for run_dir in finished_runs(args.root)]
+    except ProgressError as error:
+        parser.error(f"{error}; nothing copied")
     for pattern in args.checkpoint:
         if not any(keeps_checkpoint(run, [pattern]) for run in runs):
             parser.error(f"--checkpoint {pattern!r} matches no finished run under {args.root}; "
                          "nothing copied")
+    without = [run for run in runs if keeps_checkpoint(run, args.checkpoint)
+               and not _final_checkpoint(args.root / run).is_file()]
+    if without:
+        parser.error(f"--checkpoint asks for the final checkpoint of {without[0]}, which has none "
+                     "(archived without it?); nothing copied")
     copied, kept = archive_finished(args.root, args.archive, args.checkpoint)
     print(f"archived {copied} finished runs of {args.root} in {args.archive} "
           f"({kept} with their final checkpoint)")

@@ -39,7 +39,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from svrpo.analysis.plotting import RunCurve, common_length, load_curve  # noqa: E402
-from svrpo.config import Config  # noqa: E402
 from svrpo.experiments.aggregate import (  # noqa: E402
     REFERENCE,
     aggregate_report,
@@ -50,7 +49,7 @@ from svrpo.experiments.aggregate import (  # noqa: E402
 )
 from svrpo.experiments.specs import ExperimentSpec, load_spec  # noqa: E402
 from svrpo.experiments.table import FINAL_FRACTION, t_interval  # noqa: E402
-from svrpo.rundir import checkpoint  # noqa: E402
+from svrpo.rundir.completion import is_finished  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 CONFIRMATION_SEEDS = list(range(100, 110))
@@ -129,18 +128,11 @@ def run_dirs(spec: ExperimentSpec, runs: Path) -> dict[str, list[Path]]:
                    for preset in spec.presets for seed in spec.seeds] for task in spec.tasks}
 
 
-def finished(run_dir: Path) -> bool:
-    """The run's final checkpoint exists (what `svrpo sweep` calls done)."""
-    try:
-        config = Config.from_json((run_dir / "config.json").read_text())
-    except OSError:
-        return False
-    return checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations).is_file()
-
-
 def unfinished(groups: Mapping[str, Mapping[str, Sequence[Path]]]) -> list[Path]:
-    """The run directories of `groups` (configuration -> task -> runs) that have not finished."""
-    return [d for by_task in groups.values() for dirs in by_task.values() for d in dirs if not finished(d)]
+    """The run directories of `groups` (configuration -> task -> runs) that have not finished
+    (svrpo.rundir.completion: the rule `svrpo sweep` uses; a missing run has not finished)."""
+    return [d for by_task in groups.values() for dirs in by_task.values() for d in dirs
+            if not is_finished(d)]
 
 
 Curves = dict[str, dict[str, list[RunCurve]]]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 from pathlib import Path
 from types import ModuleType
 
@@ -38,9 +39,10 @@ def test_two_significant_digits() -> None:
 
 def _write_run(run_dir: Path, env_id: str, preset: str, experiment: str, seed: int,
                returns: list[float], kl: list[float], finished: bool = True, step: int = 2048) -> None:
-    """A run directory as a sweep leaves it: config.json, run.json, progress.csv, and the final
-    checkpoint's file when finished (the report only checks that it exists). The deterministic
-    evaluation, on the last row only, is the last return + 7 (told apart from the training return)."""
+    """A run directory as a sweep leaves it: config.json, run.json, progress.csv and the final
+    checkpoint's file (empty: the report does not read it); an unfinished run stopped before its
+    last row, with the checkpoint before it. The deterministic evaluation, on the last row only,
+    is the last return + 7 (told apart from the training return)."""
     iterations = len(returns)
     config = make_preset(preset, env_id, "modern").replace(seed=seed, total_steps=2048 * iterations)
     run_dir.mkdir(parents=True)
@@ -51,10 +53,10 @@ def _write_run(run_dir: Path, env_id: str, preset: str, experiment: str, seed: i
     for i, (r, k) in enumerate(zip(returns, kl, strict=True), start=1):
         evaluation = r + 7.0 if i == iterations else ""
         rows.append(f"{i},{step * i},{5.0 * i + seed},{r},{evaluation},{k},1.0,2.0")
-    (run_dir / "progress.csv").write_text("\n".join(rows) + "\n")
+    logged = iterations if finished else iterations - 1
+    (run_dir / "progress.csv").write_text("\n".join(rows[:logged + 1]) + "\n")
     (run_dir / "checkpoints").mkdir()
-    if finished:
-        (run_dir / "checkpoints" / f"iter_{iterations:06d}.pt").write_bytes(b"")
+    (run_dir / "checkpoints" / f"iter_{logged:06d}.pt").write_bytes(b"")
 
 
 def _screening(tmp_path: Path, finish_all: bool = True):  # type: ignore[no-untyped-def]
@@ -119,7 +121,12 @@ def test_report_reads_a_reference_that_is_not_one_of_its_configurations(tmp_path
     assert list(summary["per_task"]["Hopper-v5"]) == ["ref", "vr-a", "vr-b", "sgd"]
     assert summary["decision"]["chosen"] == "vr-a"
     assert summary["decision"]["candidate_iqm"]["vr-a"] == pytest.approx(151 / 101)
-    (runs / "s-ref-modern" / "Hopper-v5" / "trpo" / "seed1" / "checkpoints" / "iter_000010.pt").unlink()
+    # Archived without its checkpoint, the run is still finished; without its last row it is not.
+    reference = runs / "s-ref-modern" / "Hopper-v5" / "trpo" / "seed1"
+    shutil.rmtree(reference / "checkpoints")
+    assert script.report(screening, runs, resamples=200)[1]["decision"] == summary["decision"]
+    rows = (reference / "progress.csv").read_text().splitlines(keepends=True)
+    (reference / "progress.csv").write_text("".join(rows[:-1]))
     with pytest.raises(ValueError, match="1 runs have not finished"):
         script.report(screening, runs, resamples=50)
 
@@ -222,9 +229,9 @@ def test_confirmation_report_answers_the_protocols_questions(tmp_path: Path,
     assert set(summary["per_task"]["Hopper-v5"]) == {"vr-a", "sgd", "trpo-d0.02", script.COMMITTED_TRPO}
     assert (f"The CPU and wall-clock seconds of {script.COMMITTED_TRPO} come from the schedule those runs "
             "were made in (another sweep's), not this confirmation's.") in lines
-    # One confirmation run short of its final checkpoint: no numbers at all.
-    (runs / "s-sgd-modern" / "Walker2d-v5" / "svrpo-budgeted" / "seed101" / "checkpoints"
-     / "iter_000010.pt").unlink()
+    # One confirmation run short of its last row (a cut line): no numbers at all.
+    short = runs / "s-sgd-modern" / "Walker2d-v5" / "svrpo-budgeted" / "seed101" / "progress.csv"
+    short.write_text(short.read_text()[:-3])
     with pytest.raises(ValueError, match="1 runs have not finished"):
         script.confirmation_report(screening, runs, resamples=50)
 
@@ -290,8 +297,9 @@ def test_fresh_confirmation_report_adds_the_same_batch_choice_once_it_has_finish
             "| trpo-d0.04 ahead |" in lines)
     assert any("comparison with the best same-batch configuration is missing" in line for line in lines)
     assert len(summary["per_task"]["Hopper-v5"][script.COMMITTED_TRPO]["final_return"]) == 5
-    (runs / "bt-confirm-same-modern" / "Hopper-v5" / "svrpo-budgeted" / "seed102" / "checkpoints"
-     / "iter_000010.pt").write_bytes(b"")
+    last = runs / "bt-confirm-same-modern" / "Hopper-v5" / "svrpo-budgeted" / "seed102"
+    shutil.rmtree(last)  # the run finishes: its last row is written
+    _write_run(last, "Hopper-v5", "svrpo-budgeted", "bt-confirm-same", 102, [0.0] + [232.0] * 9, [0.01] * 10)
     lines, summary = script.confirmation_report(screening, runs, resamples=200)
     answers = [(a["x"], a["y"], a["value"]) for a in summary["answers"]]
     assert answers == [("vr-a", script.COMMITTED_TRPO, 1.0), ("vr-a", "trpo-d0.04", 0.0),

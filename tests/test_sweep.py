@@ -364,3 +364,57 @@ def test_sweep_seeds_option_refuses_what_is_not_seeds(tmp_path: Path, option: st
     ((0, 1, 2, 7), "0-2, 7"), ((3, 7), "3, 7"), ((7, 3), "7, 3"), ((5, 6, 9, 10, 11, 20), "5-6, 9-11, 20")])
 def test_describe_seeds_joins_consecutive_seeds_into_ranges(seeds: tuple[int, ...], text: str) -> None:
     assert describe_seeds(seeds) == text
+
+
+def test_runs_archived_without_checkpoints_are_skipped_and_partial_ones_resume(tmp_path: Path) -> None:
+    """The archive's round trip as a user runs it: sweep, `benchmarks/archive_runs.py` (no
+    checkpoints kept), copy the archive into a fresh root, sweep again: every run is finished
+    by its progress.csv (svrpo.rundir.completion), so nothing is trained or touched. A run cut
+    back to its first row with its first checkpoint resumes; a run killed between its last row
+    and its final checkpoint resumes to write it; a run whose progress.csv holds more
+    iterations than its config asks for stops the sweep (one line, exit 2, nothing written)."""
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY_YAML.replace("presets: [svrpo, trpo]", "presets: [trpo]")
+                    .replace("seeds: 2", "seeds: 3"))
+    root = tmp_path / "runs"
+    assert _sweep(spec, root).returncode == 0
+    archive = tmp_path / "archive"
+    archived = subprocess.run([sys.executable, str(Path(__file__).resolve().parents[1] / "benchmarks"
+                                                   / "archive_runs.py"), str(root), str(archive)],
+                              capture_output=True, text=True, timeout=600)
+    assert archived.returncode == 0 and "archived 3 finished runs" in archived.stdout, archived.stderr
+    assert not list(archive.rglob("*.pt"))
+
+    fresh = tmp_path / "next-machine"
+    shutil.copytree(archive, fresh)
+    before = _snapshot(fresh)
+    again = _sweep(spec, fresh)
+    assert again.returncode == 0, again.stderr
+    assert "3 runs: 3 already done (skipped), 0 resumed, 0 started" in again.stdout
+    assert _snapshot(fresh) == before, "an archived finished run was trained again"
+
+    base = root / "tiny-laptop" / "InvertedPendulum-v5" / "trpo"
+    original = {seed: progress_rows(base / f"seed{seed}") for seed in (0, 1)}
+    # seed0: interrupted after iteration 1; seed1: killed after writing its last row, before its
+    # final checkpoint (resuming redoes iteration 2 and writes it).
+    (base / "seed0" / "checkpoints" / "iter_000002.pt").unlink()
+    lines = (base / "seed0" / "progress.csv").read_text().splitlines(keepends=True)
+    (base / "seed0" / "progress.csv").write_text("".join(lines[:2]))
+    (base / "seed1" / "checkpoints" / "iter_000002.pt").unlink()
+    resumed = _sweep(spec, root)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "3 runs: 1 already done (skipped), 2 resumed, 0 started; 2 finished" in resumed.stdout
+    for seed in (0, 1):
+        run_dir = base / f"seed{seed}"
+        assert (run_dir / "checkpoints" / "iter_000002.pt").is_file()
+        assert without_clock(progress_rows(run_dir)) == without_clock(original[seed])
+    assert progress_rows(base / "seed0")[0] == original[0][0], "iteration 1 was re-run, not resumed"
+
+    extra = fresh / "tiny-laptop" / "InvertedPendulum-v5" / "trpo" / "seed2" / "progress.csv"
+    rows = extra.read_text().splitlines(keepends=True)
+    extra.write_text("".join(rows) + rows[-1].replace("2,", "3,", 1))
+    before = _snapshot(fresh)
+    refused = _sweep(spec, fresh)
+    assert refused.returncode == 2 and "holds 3 iterations, its config asks for 2" in refused.stderr
+    assert len(refused.stderr.strip().splitlines()) == 1, refused.stderr
+    assert _snapshot(fresh) == before

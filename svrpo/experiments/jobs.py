@@ -7,7 +7,6 @@ is trained, so a backend only needs the directory to start or resume the run
 
 from __future__ import annotations
 
-import csv
 import json
 import shutil
 import time
@@ -20,6 +19,7 @@ from svrpo.config import Config, differing_fields
 from svrpo.experiments.specs import ExperimentSpec, SpecError
 from svrpo.rundir import checkpoint
 from svrpo.rundir.atomic import write_text_atomic
+from svrpo.rundir.completion import ProgressError, is_finished
 from svrpo.rundir.run_files import foreign_entries
 from svrpo.rundir.run_record import write_config, write_meta
 from svrpo.sampling.batch_step import stepper_record
@@ -29,11 +29,13 @@ class RunStatus(str, Enum):
     """Where a run directory stands before a sweep starts it."""
 
     NEW = "new"
-    """Nothing trained yet (no checkpoint)."""
+    """Not finished and no checkpoint: trained from iteration 0 (rows it may hold are redone)."""
     PARTIAL = "partial"
-    """Some iterations trained: resumed from its last checkpoint."""
+    """Not finished, or finished but killed before its final checkpoint: resumed from its
+    newest checkpoint."""
     DONE = "done"
-    """progress.csv has config.iterations rows and the final checkpoint exists: skipped."""
+    """Finished (svrpo.rundir.completion) with its final checkpoint, or with no checkpoint at
+    all (an archived run): skipped."""
 
 
 @dataclass(frozen=True)
@@ -112,21 +114,9 @@ def plan_all(specs: Sequence[ExperimentSpec], root: Path) -> list[RunJob]:
     return sorted(jobs, key=cell)
 
 
-def completed_iterations(run_dir: Path) -> int:
-    """Complete rows of progress.csv (0 when absent); a half-written last line does not count."""
-    path = run_dir / "progress.csv"
-    if not path.is_file():
-        return 0
-    with open(path, newline="") as handle:
-        rows = list(csv.reader(handle))
-    if not rows:
-        return 0
-    width = len(rows[0])
-    return sum(1 for row in rows[1:] if len(row) == width)
-
-
 def status(job: RunJob) -> RunStatus:
-    """NEW, PARTIAL or DONE; SpecError if the directory holds a run with another config."""
+    """NEW, PARTIAL or DONE; SpecError if the directory holds a run with another config, or a
+    progress.csv that training cannot have written for it (completion.ProgressError)."""
     config_path = job.run_dir / "config.json"
     if not config_path.is_file():
         return RunStatus.NEW
@@ -139,13 +129,17 @@ def status(job: RunJob) -> RunStatus:
         detail = ", ".join(f"{name} {old!r} there, {new!r} here" for name, (old, new) in changed.items())
         raise SpecError(f"{job.run_dir} holds a run with another config ({detail}); "
                         "use another --root or delete that directory")
-    iterations = job.config.iterations
-    final = checkpoint.checkpoint_path(job.run_dir / "checkpoints", iterations)
-    if final.is_file() and completed_iterations(job.run_dir) >= iterations:
+    try:
+        finished = is_finished(job.run_dir, job.config)
+    except ProgressError as error:
+        raise SpecError(f"{error}; delete that run directory") from None
+    checkpoints = checkpoint.list_checkpoints(job.run_dir / "checkpoints")
+    final = checkpoint.checkpoint_path(job.run_dir / "checkpoints", job.config.iterations)
+    if finished and (final.is_file() or not checkpoints):
         return RunStatus.DONE
-    if checkpoint.list_checkpoints(job.run_dir / "checkpoints"):
-        return RunStatus.PARTIAL
-    return RunStatus.NEW
+    # A finished run with checkpoints but not the final one was killed between its last row
+    # and that checkpoint: resuming redoes the last iterations (the same rows) and writes it.
+    return RunStatus.PARTIAL if checkpoints else RunStatus.NEW
 
 
 def identical_finished_run(job: RunJob, root: Path) -> Path | None:

@@ -62,10 +62,11 @@ def run_sweep(spec: ExperimentSpec | Sequence[ExperimentSpec], root: Path, backe
     that is not finished; return the counts.
 
     Checks every config, task and existing run directory before anything is written or
-    started (ConfigError, EnvError, SpecError). A finished run (progress.csv with
-    config.iterations rows and the final checkpoint) is skipped; any other run with a checkpoint
-    resumes from its latest one; the rest start from scratch, except (with `reuse`) a new run
-    whose exact config already finished under another experiment of `root`: that run is copied.
+    started (ConfigError, EnvError, SpecError). A finished run (svrpo.rundir.completion: every
+    iteration's row; with its final checkpoint, or none at all as archived) is skipped; any other
+    run with a checkpoint resumes from its latest one; the rest start from scratch, except (with
+    `reuse`) a new run whose exact config already finished under another experiment of `root`:
+    that run is copied.
     """
     specs = [spec] if isinstance(spec, ExperimentSpec) else list(spec)
     if not specs:
