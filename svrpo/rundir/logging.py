@@ -18,6 +18,32 @@ from svrpo.rundir.atomic import write_text_atomic
 WALL_CLOCK_COLUMNS = ("wall_time", "time_sampling", "time_update", "steps_per_second", "cpu_learner",
                       "cpu_workers")
 
+_NAMESPACE_COLUMNS = {
+    "rollout": ("average_return", "episodes", "episode_length", "snapshot_steps", "fresh_steps"),
+    "train": ("mean_kl", "surrogate_improvement", "expected_improvement", "inner_steps_attempted",
+              "inner_steps_accepted", "accept_rate", "stopped_early", "stopped_by_budget",
+              "budget_rejections", "backtracks", "skipped_curvature", "skipped_nonfinite_gradient",
+              "nonfinite_batches", "cg_residual", "cg_iterations", "svrg_variance", "sgd_variance",
+              "variance_ratio", "estimator_error", "estimator_variance_ratio",
+              "baseline_explained_variance", "entropy", "action_std"),
+    # SB3 logs its fps and iteration count under time/ too.
+    "time": ("iteration", "wall_time", "time_sampling", "time_update", "steps_per_second", "cpu_learner",
+             "cpu_workers"),
+    "eval": ("eval_return",),
+}
+TENSORBOARD_NAMESPACES: dict[str, str] = {column: namespace for namespace, columns in
+                                          _NAMESPACE_COLUMNS.items() for column in columns}
+"""The TensorBoard tag of each progress.csv column is NAMESPACE/column, grouped as SB3 groups its
+scalars (rollout/, train/, time/, eval/); env_steps is the step of every scalar, not a scalar."""
+
+
+def tensorboard_tag(column: str) -> str:
+    """NAMESPACE/column for TensorBoard; KeyError for a column with no namespace yet."""
+    if column not in TENSORBOARD_NAMESPACES:
+        raise KeyError(f"progress.csv column {column!r} has no TensorBoard namespace: "
+                       "add it to svrpo.rundir.logging._NAMESPACE_COLUMNS")
+    return f"{TENSORBOARD_NAMESPACES[column]}/{column}"
+
 
 def truncate_progress(path: Path, keep_iterations: int) -> list[int]:
     """Keep the header and the rows with iteration < keep_iterations (for resume); their iterations.
@@ -110,7 +136,7 @@ class RunLogger:
         for key, value in row.items():
             numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
             if numeric and key != "env_steps" and math.isfinite(value):
-                self._writer.add_scalar(key, value, step)
+                self._writer.add_scalar(tensorboard_tag(key), value, step)
         self._writer.flush()
         self._bar.update(step - self._bar.n)
         postfix = {
