@@ -41,6 +41,7 @@ from scipy import stats
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from svrpo.experiments.table import final_window, t_interval  # noqa: E402
+from svrpo.rundir.completion import is_finished  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
@@ -146,8 +147,7 @@ def our_runs(runs: Path, env: str, preset: str, experiment: str = "figure1-moder
             continue
         rows = read_progress(path)
         config = json.loads((seed_dir / "config.json").read_text())
-        finished = bool(rows) and rows[-1]["env_steps"] >= config["total_steps"]
-        if not finished or not math.isfinite(rows[-1]["eval_return"]):
+        if not is_finished(seed_dir) or not math.isfinite(rows[-1]["eval_return"]):
             continue
         returns = [row["average_return"] for row in rows]
         counts = [row.get("episodes", math.nan) for row in rows]

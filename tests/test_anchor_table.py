@@ -4,13 +4,13 @@ the Welch comparison, and the merge of several sb3 JSON files."""
 from __future__ import annotations
 
 import csv
-import json
 import math
 from pathlib import Path
 from types import ModuleType
 
 import pytest
 
+from svrpo.config import make_preset
 from tests.helpers import load_benchmark
 
 
@@ -84,7 +84,9 @@ def _our_run(root: Path, env: str, seed: int, returns: list[float], episodes: li
              final_eval: float) -> None:
     run_dir = root / "figure1-modern" / env / "trpo" / f"seed{seed}"
     run_dir.mkdir(parents=True)
-    (run_dir / "config.json").write_text(json.dumps({"seed": seed, "total_steps": 100 * len(returns)}))
+    config = make_preset("trpo", env, "modern").replace(seed=seed, batch_size=100, minibatch_size=100,
+                                                         total_steps=100 * len(returns))
+    (run_dir / "config.json").write_text(config.to_json())
     with open(run_dir / "progress.csv", "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(["iteration", "env_steps", "wall_time", "average_return", "eval_return", "episodes"])

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from svrpo.config import make_preset
 from tests.helpers import load_benchmark
 
 report = load_benchmark("paper_swimmer_report", "results/figure1-paper-swimmer")
@@ -27,8 +28,9 @@ def write_run(root: Path, preset: str, seed: int, returns: list[float], *, accep
     """A run directory as a figure1 sweep writes it, with the columns the report reads."""
     run_dir = root / "figure1-paper" / "Swimmer-v5" / preset / f"seed{seed}"
     run_dir.mkdir(parents=True)
-    (run_dir / "config.json").write_text(json.dumps(
-        {"env_id": "Swimmer-v5", "seed": seed, "total_steps": STEPS * ITERATIONS}))
+    config = make_preset(preset, "Swimmer-v5", "paper").replace(
+        seed=seed, batch_size=STEPS, minibatch_size=STEPS, total_steps=STEPS * ITERATIONS)
+    (run_dir / "config.json").write_text(config.to_json())
     meta = {"preset": preset, "experiment": "figure1", "scale": "paper"}
     (run_dir / "run.json").write_text(json.dumps(meta))
     with open(run_dir / "progress.csv", "w", newline="") as handle:
@@ -36,7 +38,7 @@ def write_run(root: Path, preset: str, seed: int, returns: list[float], *, accep
         writer.writerow(["iteration", "env_steps", "wall_time", "average_return", "eval_return",
                          "variance_ratio", "cpu_learner", "cpu_workers", "inner_steps_accepted", "mean_kl"])
         for i, value in enumerate(returns):
-            writer.writerow([i, STEPS * (i + 1), 2.0 * (i + 1), value, value + 1.0,
+            writer.writerow([i + 1, STEPS * (i + 1), 2.0 * (i + 1), value, value + 1.0,
                              "" if preset == "trpo" else 0.5, 1.0 if cpu else "", 2.0 if cpu else "",
                              accepted, 0.01])
     return run_dir

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import sys
 from collections.abc import Sequence
@@ -56,6 +55,7 @@ from svrpo.experiments.table import (  # noqa: E402
     smoothed_seeds,
     summarize,
 )
+from svrpo.rundir.completion import is_finished  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 
 TASK = "Swimmer-v5"
@@ -151,21 +151,12 @@ class Claim:
         return f"{verdict}: {parts}"
 
 
-def finished(run_dir: Path) -> bool:
-    """Whether the run's progress.csv reaches its config's total_steps."""
-    path = run_dir / "progress.csv"
-    if not path.is_file():
-        return False
-    rows = read_progress(path)
-    total = float(json.loads((run_dir / "config.json").read_text())["total_steps"])
-    return bool(rows) and rows[-1]["env_steps"] >= total
-
-
 def complete_seeds(task_dir: Path, presets: Sequence[str] = PRESETS) -> list[int]:
-    """The seeds k for which every preset's seed<k> run has finished."""
+    """The seeds k for which every preset's seed<k> run has finished (svrpo.rundir.completion)."""
     per_preset = []
     for preset in presets:
-        seeds = {int(d.name.removeprefix("seed")) for d in (task_dir / preset).glob("seed*") if finished(d)}
+        seeds = {int(d.name.removeprefix("seed")) for d in (task_dir / preset).glob("seed*")
+                 if is_finished(d)}
         per_preset.append(seeds)
     return sorted(set.intersection(*per_preset)) if per_preset else []
 

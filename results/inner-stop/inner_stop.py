@@ -33,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from a check
 
 from svrpo.analysis.plotting import load_curve, mean_and_ci  # noqa: E402
 from svrpo.experiments.table import smoothed_seeds  # noqa: E402
+from svrpo.rundir.completion import is_finished  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 from svrpo.tools.bench import machine_info, update_breakdown  # noqa: E402
 
@@ -69,21 +70,13 @@ def same_batches(repeats: int, warmup_iterations: int, scale: str) -> dict[str, 
     return report
 
 
-def _finished(run_dir: Path) -> bool:
-    """Whether the run logged every iteration its config asks for."""
-    if not (run_dir / "progress.csv").is_file():
-        return False
-    config = json.loads((run_dir / "config.json").read_text())
-    return len(read_progress(run_dir / "progress.csv")) == config["total_steps"] // config["batch_size"]
-
-
 def learning(root: Path) -> dict[str, Any]:
     table: dict[str, Any] = {}
     for rule in RULES:
         experiment = root / f"inner-stop-{rule.replace('_', '-')}-laptop"
         for task in TASKS:
             run_dirs = sorted((experiment / task / "svrpo").glob("seed*"))
-            done = [d for d in run_dirs if _finished(d)]
+            done = [d for d in run_dirs if is_finished(d)]
             if not done:
                 continue
             curves = [load_curve(d) for d in done]
