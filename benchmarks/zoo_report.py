@@ -34,6 +34,7 @@ import anchor_table  # noqa: E402
 
 from svrpo.experiments.aggregate import probability_bootstrap  # noqa: E402
 from svrpo.experiments.table import t_interval  # noqa: E402
+from svrpo.rundir.completion import is_finished  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 
 TASKS = ("Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
@@ -71,16 +72,15 @@ def eval150_mean(path: Path) -> float:
 
 
 def arm_seeds(root: Path, experiment: str, task: str) -> list[Seed]:
-    """The finished seeds of ROOT/EXPERIMENT/TASK/trpo (a run whose last row has not reached
-    total_steps, or has no final evaluation, is left out)."""
+    """The finished seeds of ROOT/EXPERIMENT/TASK/trpo (a run that has not logged every iteration
+    its config asks for, svrpo.rundir.completion, or has no final evaluation, is left out)."""
     seeds = []
     for seed_dir in sorted((root / experiment / task / "trpo").glob("seed*")):
         if not (seed_dir / "progress.csv").is_file():
             continue
         rows = read_progress(seed_dir / "progress.csv")
         config = json.loads((seed_dir / "config.json").read_text())
-        finished = bool(rows) and rows[-1]["env_steps"] >= config["total_steps"]
-        if not finished or not math.isfinite(rows[-1]["eval_return"]):
+        if not is_finished(seed_dir) or not math.isfinite(rows[-1]["eval_return"]):
             continue
         cpu = sum(row["cpu_learner"] + row["cpu_workers"] for row in rows)
         seeds.append(Seed(int(config["seed"]), rows[-1]["eval_return"],

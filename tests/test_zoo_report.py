@@ -5,9 +5,9 @@ output, where rl-zoo's published number lies, and the comparisons' sides."""
 from __future__ import annotations
 
 import csv
-import json
 from pathlib import Path
 
+from svrpo.config import make_preset
 from tests.helpers import load_benchmark
 
 COLUMNS = ["iteration", "env_steps", "average_return", "eval_return", "episodes", "wall_time",
@@ -18,7 +18,9 @@ def _run(root: Path, experiment: str, task: str, seed: int, returns: list[float]
          total_steps: int = 40, eval150: list[float] | None = None) -> None:
     run = root / experiment / task / "trpo" / f"seed{seed}"
     run.mkdir(parents=True)
-    (run / "config.json").write_text(json.dumps({"seed": seed, "total_steps": total_steps}))
+    config = make_preset("trpo", task, "zoo").replace(seed=seed, batch_size=10, minibatch_size=10,
+                                                       total_steps=total_steps)
+    (run / "config.json").write_text(config.to_json())
     with open(run / "progress.csv", "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(COLUMNS)
