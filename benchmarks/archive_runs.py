@@ -91,10 +91,15 @@ def archive_partial(root: Path, archive: Path) -> int:
     return len(runs)
 
 
-def _final_checkpoint(run_dir: Path) -> Path:
-    """Where the run's final checkpoint is (whether or not it is there)."""
+def kept_checkpoint(run_dir: Path) -> Path | None:
+    """The checkpoint --checkpoint keeps of a finished run: its final one; else, for a run killed
+    after its last row and before that checkpoint, its newest (a sweep resumes such a run, which
+    writes the final one); None when it has no checkpoint (an archived run)."""
     config = Config.from_json((run_dir / "config.json").read_text())
-    return checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations)
+    final = checkpoint.checkpoint_path(run_dir / "checkpoints", config.iterations)
+    if final.is_file():
+        return final
+    return next(iter(checkpoint.list_checkpoints(run_dir / "checkpoints")), None)
 
 
 def keeps_checkpoint(relative: Path, patterns: list[str]) -> bool:
@@ -114,9 +119,10 @@ def archive_finished(root: Path, archive: Path, patterns: list[str]) -> tuple[in
             if (run_dir / name).is_file():
                 shutil.copy2(run_dir / name, target / name)
         if keeps_checkpoint(relative, patterns):
-            final = _final_checkpoint(run_dir)
+            kept_file = kept_checkpoint(run_dir)
+            assert kept_file is not None, "main() refuses a pattern matching a run without one"
             (target / "checkpoints").mkdir(exist_ok=True)
-            shutil.copy2(final, target / "checkpoints" / final.name)
+            shutil.copy2(kept_file, target / "checkpoints" / kept_file.name)
             kept += 1
         copied += 1
     return copied, kept
@@ -146,10 +152,10 @@ def main() -> None:
             parser.error(f"--checkpoint {pattern!r} matches no finished run under {args.root}; "
                          "nothing copied")
     without = [run for run in runs if keeps_checkpoint(run, args.checkpoint)
-               and not _final_checkpoint(args.root / run).is_file()]
+               and kept_checkpoint(args.root / run) is None]
     if without:
-        parser.error(f"--checkpoint asks for the final checkpoint of {without[0]}, which has none "
-                     "(archived without it?); nothing copied")
+        parser.error(f"--checkpoint asks for the final checkpoint of {without[0]}, which has no "
+                     "checkpoint (archived without it?); nothing copied")
     copied, kept = archive_finished(args.root, args.archive, args.checkpoint)
     print(f"archived {copied} finished runs of {args.root} in {args.archive} "
           f"({kept} with their final checkpoint)")

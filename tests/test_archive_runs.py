@@ -89,3 +89,17 @@ def test_finished_runs_are_archived_without_checkpoints_unless_asked(tmp_path: P
         assert plotted.returncode == 0, plotted.stderr
         tables.append(next(out.rglob("table.md")).read_text())
     assert tables[0] == tables[1] and "InvertedPendulum-v5" in tables[0]
+
+    # seed1 killed after its last row, before its final checkpoint (the older one stands in):
+    # --checkpoint keeps its newest, which a sweep resumes to write the final one. Without any
+    # checkpoint, --checkpoint is refused before anything is copied.
+    checkpoints = root / "exp" / "InvertedPendulum-v5" / "trpo" / "seed1" / "checkpoints"
+    (checkpoints / "iter_000002.pt").rename(checkpoints / "iter_000001.pt")
+    newest = _archive(str(root), str(tmp_path / "newest"), "--checkpoint", "exp/*/trpo/seed1")
+    assert newest.returncode == 0, newest.stderr
+    archived = tmp_path / "newest" / checkpoints.relative_to(root)
+    assert [p.name for p in archived.iterdir()] == ["iter_000001.pt"]
+    shutil.rmtree(checkpoints)
+    none = _archive(str(root), str(tmp_path / "none"), "--checkpoint", "exp/*/trpo/seed1")
+    assert none.returncode == 2 and "which has no checkpoint" in none.stderr
+    assert not (tmp_path / "none").exists()
