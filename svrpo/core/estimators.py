@@ -15,7 +15,7 @@ per inner step. All of them read the iteration's batch only, through `BatchGradi
                        SARAH step (PAGE, Li et al. 2021; PAGE-PG, Gargiani et al. 2022).
 
 The fresh-sample estimators (svrpo/fresh/: SVRPG, SRVR-PG, STORM-PG, fresh SGD) are registered
-here too; their inner steps j >= 1 read batches drawn with w_j (svrpo/core/step_rows.FreshDraws),
+here too; their inner steps j >= 1 read batches drawn with w_j (FreshDraws in svrpo/core/step_rows.py),
 not mini-batches of this batch.
 
 `ESTIMATORS` maps each config value of `estimator` to the factory that builds its part; a new

@@ -218,7 +218,7 @@ def update_policy(
     `generator` draws the mini-batches and Fisher subsets (so two estimators run with the same
     seed see the same data); `probe_generator` draws only the variance-probe mini-batches, so
     switching the probe off does not change training. `draw` samples steps with the current
-    iterate (needed by a fresh-sample estimator, svrpo/core/step_rows.FreshDraws).
+    iterate (needed by a fresh-sample estimator, FreshDraws in svrpo/core/step_rows.py).
     surrogate_improvement and mean_kl are measured on the snapshot batch whichever rows the
     steps read.
     """
