@@ -14,12 +14,13 @@
 from typing import Any
 
 from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, field_docs, make_preset
+from svrpo.config_file import load_config
 
 _ESTIMATOR_NAMES = ("BatchGradients", "GradientEstimator", "FullGradient", "MinibatchGradient",
                     "SvrgGradient", "SarahGradient", "StormGradient")
 
-__all__ = ["PRESET_NAMES", "SCALES", "Config", "ConfigError", "field_docs", "load_policy", "make_preset",
-           "measure_gradient_error", "train", "__version__", *_ESTIMATOR_NAMES]
+__all__ = ["PRESET_NAMES", "SCALES", "Config", "ConfigError", "field_docs", "load_config", "load_policy",
+           "make_preset", "measure_gradient_error", "train", "__version__", *_ESTIMATOR_NAMES]
 __version__ = "0.1.0"
 
 

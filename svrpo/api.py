@@ -14,11 +14,13 @@ if TYPE_CHECKING:
     from svrpo.core.estimators import GradientEstimator
 
 
-def train(config: Config, run_dir: str | os.PathLike[str], resume: bool = False,
+def train(config: Config | str | os.PathLike[str], run_dir: str | os.PathLike[str], resume: bool = False,
           show_progress: bool = True, env: Callable[[], Any] | None = None,
           estimator: GradientEstimator | None = None, overwrite: bool = False,
           callback: Callable[[dict[str, Any]], Any] | None = None) -> Path:
     """Train `config` into `run_dir` (the same files as `svrpo train`); returns the run directory.
+
+    config: a Config, or the path of a config file (svrpo.load_config: e.g. `svrpo tune`'s best.yaml).
 
     run_dir must be new or empty: one that already holds a run is refused (RunDirectoryError,
     nothing touched) unless resume=True, which continues it from its newest readable checkpoint,
@@ -36,6 +38,10 @@ def train(config: Config, run_dir: str | os.PathLike[str], resume: bool = False,
     from svrpo.rundir.training import train as train_run
     from svrpo.sampling.envs import env_id_of
 
+    if not isinstance(config, Config):
+        from svrpo.config_file import load_config
+
+        config = load_config(config)
     if estimator is not None:
         check_estimator(estimator, config)  # before anything is written
     if env is not None:

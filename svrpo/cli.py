@@ -1,4 +1,4 @@
-"""`svrpo train | sweep | plot | evaluate | gradient-error`: the command-line front end.
+"""`svrpo train | sweep | tune | plot | evaluate | gradient-error`: the command-line front end.
 
 Bad input: one line on stderr, exit code 2.
 """
@@ -60,16 +60,34 @@ def _build_config(args: argparse.Namespace, extra: list[str]) -> Config:
             if getattr(args, flag) is not None and name in overrides]
     if both:
         raise UsageError(f"{'; '.join(both)} set the same field: give one of them")
-    for name, value in _TRAIN_DEFAULTS.items():
-        if getattr(args, name) is None:
-            setattr(args, name, value)
-    config = make_preset(args.preset, overrides.pop("env_id", args.env), args.scale)
+    if args.config is not None:
+        config = _config_from_file(args, overrides)
+    else:
+        for name, value in _TRAIN_DEFAULTS.items():
+            if getattr(args, name) is None:
+                setattr(args, name, value)
+        config = make_preset(args.preset, overrides.pop("env_id", args.env), args.scale)
     changes: dict[str, Any] = {"seed": args.seed}
     if args.steps is not None:
         changes["total_steps"] = args.steps
     for name, value in overrides.items():
         changes[name] = coerce_field(name, value)
     return config.replace(**changes)
+
+
+def _config_from_file(args: argparse.Namespace, overrides: dict[str, str]) -> Config:
+    """--config FILE: the file's preset and scale (so --preset and --scale would contradict it),
+    for --env if given; sets args.preset and args.scale for the run's record."""
+    from svrpo.config_file import read_config_file
+
+    given = [f"--{name}" for name in ("preset", "scale") if getattr(args, name) is not None]
+    if given:
+        raise UsageError(f"--config {args.config} names the preset and scale: drop {', '.join(given)}")
+    loaded = read_config_file(args.config)
+    args.preset, args.scale = loaded.preset, loaded.scale
+    if args.seed is None:
+        args.seed = loaded.fields.get("seed", _TRAIN_DEFAULTS["seed"])
+    return loaded.config(overrides.pop("env_id", args.env))
 
 
 def _default_out(config: Config, preset: str) -> Path:
@@ -91,7 +109,7 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
         from svrpo.sampling.envs import check_import_allowed
 
         check_import_allowed(config.env_id, args.allow_import, config_path)
-        given = [f"--{name}" for name in ("preset", "env", "scale", "seed", "out")
+        given = [f"--{name}" for name in ("preset", "env", "scale", "seed", "out", "config")
                  if getattr(args, name) is not None] + (["--overwrite"] if args.overwrite else [])
         given += [token.split("=")[0] for token in extra if token.startswith("--")]
         if given:
@@ -301,6 +319,80 @@ def _sweep(args: argparse.Namespace, extra: list[str]) -> int:
     return 1 if summary.failed else 0
 
 
+def _tune(args: argparse.Namespace, extra: list[str]) -> int:
+    """Load and check the spec (nothing written on bad input), open the study, run it, write
+    its outputs."""
+    if extra:
+        raise UsageError(f"unexpected arguments {' '.join(extra)}")
+    from svrpo.tuning import load_tune_spec
+
+    spec = load_tune_spec(args.spec)
+    if args.trials is not None and args.trials < 1:
+        raise UsageError(f"--trials must be >= 1; got {args.trials}")
+    if args.parallel_trials < 1:
+        raise UsageError(f"--parallel-trials must be >= 1; got {args.parallel_trials}")
+    backend = _sweep_backend(argparse.Namespace(backend=args.backend, jobs=args.jobs, address=args.address,
+                                                storage=None, max_retries=args.max_retries))
+    root = Path(os.path.abspath(args.root))  # Ray tasks run elsewhere: a path every node knows
+    if root.exists() and not root.is_dir():
+        raise UsageError(f"--root {root} is not a directory")
+    from svrpo.experiments.backends import BackendError
+    from svrpo.experiments.runner import raise_keyboard_interrupt
+    from svrpo.tuning import outputs
+    from svrpo.tuning import study as tuning
+
+    directory = tuning.study_directory(spec, root)
+    storage = args.storage or tuning.default_storage(spec, root)
+    target = args.trials if args.trials is not None else spec.trials
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise UsageError(f"cannot create {directory}: {error.strerror or error}") from None
+    study = tuning.open_study(spec, storage)
+    signal.signal(signal.SIGTERM, raise_keyboard_interrupt)  # stop like Ctrl-C: runs checkpoint
+    print(f"study {spec.name} in {storage}: {target} trials of {len(spec.tasks)} tasks x "
+          f"{len(spec.seeds)} seeds x {spec.steps} steps; runs in {directory / tuning.TRIALS_DIR}",
+          file=sys.stderr)
+    from tqdm import tqdm
+
+    finished = sum(t.state.is_finished() for t in study.get_trials(deepcopy=False))
+    bar = tqdm(total=target, initial=min(finished, target), unit="trial", desc="trials done",
+               file=sys.stderr, dynamic_ncols=True, mininterval=0, disable=args.no_progress)
+
+    def on_told(current: object) -> None:
+        outputs.write_tables(spec, study, directory)
+        best = outputs.best_trial(study)
+        done = sum(t.state.is_finished() for t in study.get_trials(deepcopy=False))
+        bar.update(min(done, target) - bar.n)
+        if best is not None:
+            bar.set_postfix_str(f"best {float(best.value):.4f} (trial {best.number})")  # type: ignore[arg-type]
+
+    on_told(study)
+    try:
+        backend.connect()
+        summary = tuning.run_study(spec, root, study, backend, target, args.parallel_trials, on_told,
+                                   say=lambda text: bar.write(text, file=sys.stderr))
+    except KeyboardInterrupt:
+        bar.close()
+        print("interrupted: running runs checkpointed; run the same command again to resume",
+              file=sys.stderr)
+        return 130
+    except BackendError as error:
+        raise UsageError(str(error)) from None
+    finally:
+        backend.close()
+    bar.close()
+    outputs.write_outputs(spec, study, directory, storage)
+    best = f"; best: trial {summary.best[0]}, score {summary.best[1]:.4f}" if summary.best else ""
+    print(f"{summary.finished} of {summary.target} trials finished{best}. Results in {directory}/ "
+          f"({outputs.TRIALS_CSV}, {outputs.BEST_YAML}, {outputs.REPORT}, plots)")
+    if summary.interrupted:
+        print(f"trials {', '.join(map(str, summary.interrupted))} were interrupted: run the same "
+              "command again to resume them", file=sys.stderr)
+        return 1
+    return 0
+
+
 def _evaluate(args: argparse.Namespace, extra: list[str]) -> int:
     if extra:
         raise UsageError(f"unexpected arguments {' '.join(extra)}")
@@ -403,6 +495,9 @@ def make_parser() -> argparse.ArgumentParser:
         "(e.g. --max_kl 0.02 --hidden_sizes 32,32); `svrpo fields` lists every field with its "
         "meaning and the preset's value.",
     )
+    train.add_argument("--config", default=None, metavar="FILE.yaml",
+                       help="start from a config file (preset, scale and fields, e.g. `svrpo tune`'s "
+                       "best.yaml); flags and --field values still apply")
     train.add_argument("--preset", default=None, choices=PRESET_NAMES, help="default svrpo")
     train.add_argument("--env", default=None, help="Gymnasium task id (Box spaces); default Hopper-v5")
     train.add_argument("--scale", default=None, choices=SCALES,
@@ -472,6 +567,33 @@ def make_parser() -> argparse.ArgumentParser:
                        help="ray: retries of a run whose worker, node or training process died "
                        "(default 3); it resumes from its last checkpoint")
     sweep.set_defaults(handler=_sweep)
+    tune = commands.add_parser(
+        "tune",
+        allow_abbrev=False,
+        help="search a preset's hyperparameters on Optuna (a YAML spec; docs/tuning.md)",
+        description="Run the study a tune spec describes: TPE proposes each trial's config fields, "
+        "its runs (every task x seed) train through the sweep backend with a budget in environment "
+        "steps, and a pruner stops poor trials at intermediate rungs. Run the same command again to "
+        "resume (nothing finished is redone). Writes ROOT/NAME/: study.db, trials/, trials.csv, "
+        "best.yaml, report.md and plots.",
+    )
+    tune.add_argument("spec", metavar="SPEC.yaml")
+    tune.add_argument("--root", default="tune", help="tune root directory (default tune)")
+    tune.add_argument("--storage", default=None, metavar="URL",
+                      help="Optuna storage shared by several tuners: postgresql://..., mysql+pymysql://..., "
+                      "sqlite:///FILE or journal:FILE (default: ROOT/NAME/study.db)")
+    tune.add_argument("--trials", type=int, default=None, help="trials to finish (default: the spec's)")
+    tune.add_argument("--parallel-trials", type=int, default=1,
+                      help="trials whose runs share one backend queue (default 1)")
+    tune.add_argument("--jobs", default="auto",
+                      help="runs at a time: auto (as many as their sampling workers fit in the cores) or N")
+    tune.add_argument("--backend", default="local", choices=("local", "ray"),
+                      help="local: subprocesses on this machine (default); ray: one Ray task per run "
+                      "(ROOT must be on a filesystem every node mounts at the same path)")
+    tune.add_argument("--address", default=None, help="ray: the cluster's HEAD:PORT")
+    tune.add_argument("--max-retries", type=int, default=None, help="ray: retries of a run (default 3)")
+    tune.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tune.set_defaults(handler=_tune)
     evaluate = commands.add_parser(
         "evaluate",
         help="deterministic (mean-action) returns of a saved policy, optionally an MP4",

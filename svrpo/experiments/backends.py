@@ -132,7 +132,7 @@ def _start(job: RunJob) -> _Running:
     log = open(job.run_dir / "train.log", "ab")  # noqa: SIM115 (closed in _finish)
     log.write(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} svrpo sweep: start or resume\n".encode())
     log.flush()
-    command = [sys.executable, "-m", "svrpo.experiments.runner", str(job.run_dir)]
+    command = [sys.executable, "-m", "svrpo.experiments.runner", str(job.run_dir), str(os.getpid())]
     process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                start_new_session=True)
     return _Running(job, process, log, time.perf_counter())

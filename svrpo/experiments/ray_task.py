@@ -115,20 +115,6 @@ def run_lock(run_dir: Path) -> Iterator[None]:
         yield  # the lock goes with the process, however it ends
 
 
-def _stop_when_orphaned(parent_pid: int) -> None:
-    """Stop this process like Ctrl-C (a checkpoint, then exit) once the task's worker is gone.
-
-    Without it a retried task would find the dead attempt still training the same directory.
-    """
-
-    def watch() -> None:
-        while os.getppid() == parent_pid:
-            time.sleep(1.0)
-        os.kill(os.getpid(), signal.SIGTERM)
-
-    threading.Thread(target=watch, name="svrpo-orphan-watch", daemon=True).start()
-
-
 def main(argv: list[str] | None = None) -> int:
     """`python -m svrpo.experiments.ray_task RUN_DIR TASK_PID`: the runner, guarded for Ray."""
     from svrpo.experiments import runner
@@ -137,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     if len(args) != 2 or not args[1].isdigit():
         print("usage: python -m svrpo.experiments.ray_task RUN_DIR TASK_PID", file=sys.stderr)
         return 2
-    _stop_when_orphaned(int(args[1]))
+    runner.stop_when_orphaned(int(args[1]))
     with run_lock(Path(args[0])):
         return runner.main([args[0]])
 

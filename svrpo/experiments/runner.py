@@ -1,4 +1,8 @@
-"""`python -m svrpo.experiments.runner RUN_DIR`: train or resume one prepared run directory.
+"""`python -m svrpo.experiments.runner RUN_DIR [PARENT_PID]`: train or resume one prepared run.
+
+With PARENT_PID (the local backend passes its own), the run stops as on Ctrl-C once that
+process is gone: a sweep or tuner killed with SIGKILL leaves no run training on, which would hold
+the run directory's lock when the same command is run again to resume.
 
 Exit code 0 when the run is finished, 130 when interrupted (SIGINT or SIGTERM: the last
 completed iteration is checkpointed first), 1 on any error (the traceback goes to stderr).
@@ -6,8 +10,11 @@ completed iteration is checkpointed first), 1 on any error (the traceback goes t
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
+import threading
+import time
 from pathlib import Path
 from types import FrameType
 
@@ -30,11 +37,28 @@ def accept_stop_signals() -> None:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
 
 
+def stop_when_orphaned(parent_pid: int) -> None:
+    """Stop this process like Ctrl-C (a checkpoint, then exit) once `parent_pid` is gone.
+
+    Without it a resumed sweep (or a retried Ray task) would find the dead attempt still
+    training the same directory.
+    """
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(1.0)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name="svrpo-orphan-watch", daemon=True).start()
+
+
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
-    if len(args) != 1:
-        print("usage: python -m svrpo.experiments.runner RUN_DIR", file=sys.stderr)
+    if len(args) not in (1, 2) or (len(args) == 2 and not args[1].isdigit()):
+        print("usage: python -m svrpo.experiments.runner RUN_DIR [PARENT_PID]", file=sys.stderr)
         return 2
+    if len(args) == 2:
+        stop_when_orphaned(int(args[1]))
     # A sweep started in the background inherits SIGINT ignored; the sweep forwards SIGINT to
     # stop a run, so it must raise here. SIGTERM (a batch scheduler's stop) does the same.
     signal.signal(signal.SIGINT, signal.default_int_handler)

@@ -104,17 +104,10 @@ def load_spec(name_or_path: str) -> ExperimentSpec:
     if path.suffix not in (".yaml", ".yml"):
         known = ", ".join(NAMED_EXPERIMENTS)
         raise SpecError(f"unknown experiment '{name_or_path}': give one of {known} or a .yaml file")
-    if not path.is_file():
-        raise SpecError(f"experiment file {path} does not exist")
-    import yaml
+    from svrpo.yaml_input import read_yaml
 
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
-        where = getattr(error, "problem_mark", None)
-        line = f" (line {where.line + 1})" if where is not None else ""
-        raise SpecError(f"{path} is not valid YAML{line}: {getattr(error, 'problem', error)}") from None
-    return spec_from_dict(data, default_name=path.stem, source=str(path))
+    document = read_yaml(path, SpecError)
+    return spec_from_dict(document.data, default_name=path.stem, source=str(path))
 
 
 def spec_from_dict(data: Any, default_name: str = "sweep", source: str = "spec") -> ExperimentSpec:
