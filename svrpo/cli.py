@@ -23,6 +23,7 @@ from svrpo.rundir.run_lock import LockedError, exclusive_writer
 
 if TYPE_CHECKING:
     from svrpo.experiments.backends import Backend
+    from svrpo.tuning.spec import TuneSpec
 
 
 class UsageError(ValueError):
@@ -337,24 +338,44 @@ def _tune(args: argparse.Namespace, extra: list[str]) -> int:
     if root.exists() and not root.is_dir():
         raise UsageError(f"--root {root} is not a directory")
     from svrpo.experiments.backends import BackendError
+    from svrpo.tuning import study as tuning
+
+    storage = args.storage or tuning.default_storage(spec, root)
+    try:
+        backend.connect()  # before anything is written: an unreachable cluster is bad input
+        return _tune_study(spec, args, backend, root, storage)
+    except BackendError as error:
+        raise UsageError(str(error)) from None
+    finally:
+        backend.close()
+
+
+def _tune_study(spec: TuneSpec, args: argparse.Namespace, backend: Backend, root: Path, storage: str) -> int:
+    """_tune once the spec and backend are good: open the study (SpecError if its storage cannot
+    be opened or it was made from another spec), run it, write its outputs."""
+    from tqdm import tqdm
+
     from svrpo.experiments.runner import raise_keyboard_interrupt
     from svrpo.tuning import outputs
     from svrpo.tuning import study as tuning
 
     directory = tuning.study_directory(spec, root)
-    storage = args.storage or tuning.default_storage(spec, root)
     target = args.trials if args.trials is not None else spec.trials
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise UsageError(f"cannot create {directory}: {error.strerror or error}") from None
+
+    def make_directory() -> None:
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise UsageError(f"cannot create {directory}: {error.strerror or error}") from None
+
+    if args.storage is None:
+        make_directory()  # the default SQLite file lives in it
     study = tuning.open_study(spec, storage)
+    make_directory()
     signal.signal(signal.SIGTERM, raise_keyboard_interrupt)  # stop like Ctrl-C: runs checkpoint
     print(f"study {spec.name} in {storage}: {target} trials of {len(spec.tasks)} tasks x "
           f"{len(spec.seeds)} seeds x {spec.steps} steps; runs in {directory / tuning.TRIALS_DIR}",
           file=sys.stderr)
-    from tqdm import tqdm
-
     finished = sum(t.state.is_finished() for t in study.get_trials(deepcopy=False))
     bar = tqdm(total=target, initial=min(finished, target), unit="trial", desc="trials done",
                file=sys.stderr, dynamic_ncols=True, mininterval=0, disable=args.no_progress)
@@ -369,7 +390,6 @@ def _tune(args: argparse.Namespace, extra: list[str]) -> int:
 
     on_told(study)
     try:
-        backend.connect()
         summary = tuning.run_study(spec, root, study, backend, target, args.parallel_trials, on_told,
                                    say=lambda text: bar.write(text, file=sys.stderr))
     except KeyboardInterrupt:
@@ -377,10 +397,6 @@ def _tune(args: argparse.Namespace, extra: list[str]) -> int:
         print("interrupted: running runs checkpointed; run the same command again to resume",
               file=sys.stderr)
         return 130
-    except BackendError as error:
-        raise UsageError(str(error)) from None
-    finally:
-        backend.close()
     bar.close()
     outputs.write_outputs(spec, study, directory, storage)
     best = f"; best: trial {summary.best[0]}, score {summary.best[1]:.4f}" if summary.best else ""

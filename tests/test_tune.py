@@ -16,6 +16,7 @@ import pytest
 
 from svrpo.cli import main
 from svrpo.config import Config, make_preset
+from svrpo.config_file import load_config
 from svrpo.tuning import load_tune_spec
 from tests.helpers import progress_rows
 
@@ -56,20 +57,24 @@ def _run_dirs(root: Path, name: str = "tiny") -> list[Path]:
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
-        (("max_kl: {type", "max_klx: {type"), "line 12: unknown config field 'max_klx' (did you mean max_kl?)"),
+        (("max_kl: {type", "max_klx: {type"),
+         "line 12: unknown config field 'max_klx' (did you mean max_kl?)"),
         (("low: 0.001, high: 0.1", "low: 0.1, high: 0.001"), "line 12: max_kl: the range is empty"),
-        (("batch_size: {type: int, low: 300, high: 900, step: 300}", "batch_size: {type: float, low: 300, high: 900}"),
+        (("batch_size: {type: int, low: 300, high: 900, step: 300}",
+          "batch_size: {type: float, low: 300, high: 900}"),
          "line 13: batch_size is an integer field: use int or log_int"),
         (("max_kl: {type: log_float", "max_kl: {type: int"), "max_kl is a number: type int is for integer"),
         (("low: 0.001", "low: 0.0"), "line 12: max_kl: a log range needs low > 0"),
-        (("of: batch_size", "of: estimator"), "line 14: minibatch_size: 'of' must name a numeric config field"),
+        (("of: batch_size", "of: estimator"),
+         "line 14: minibatch_size: 'of' must name a numeric config field"),
         (("max_kl: {type: log_float, low: 0.001, high: 0.1}", "max_kl: {type: categorical, choices: []}"),
          "max_kl: choices must be a non-empty list"),
         (("max_kl: {type: log_float, low: 0.001, high: 0.1}", "seed: {type: int, low: 0, high: 3}"),
          "'seed' is set by the study"),
         (("trials: 3", "trials: 0"), "line 7: trials must be an integer >= 1"),
         (("seeds: 1", "seeds: 1\nbudget: 3"), "line 6: unknown key 'budget'"),
-        (("InvertedPendulum-v5: 1000", "InvertedPendulum-v5: {low: 5, high: 5}"), "high 5 must be above low 5"),
+        (("InvertedPendulum-v5: 1000", "InvertedPendulum-v5: {low: 5, high: 5}"),
+         "high 5 must be above low 5"),
         (("InvertedPendulum-v5: 1000", "NoSuchTask-v0: 1"), "NoSuchTask-v0"),
         (("pruner: {type: median", "pruner: {type: hyperband"), "pruner type must be one of"),
         (("space:\n", "space: [\n"), "not valid YAML"),
@@ -166,8 +171,9 @@ def test_a_tiny_study_end_to_end_and_its_best_config_trains(tmp_path: Path) -> N
     assert f"trial {best.number}" in (study_dir / "report.md").read_text()  # type: ignore[attr-defined]
     # The best config trains through the CLI as a user types it.
     out = tmp_path / "best-run"
-    train = subprocess.run([sys.executable, "-m", "svrpo.cli", "train", "--config", str(study_dir / "best.yaml"),
-                            "--steps", "1000", "--out", str(out), "--no-progress"],
+    train = subprocess.run([sys.executable, "-m", "svrpo.cli", "train", "--config",
+                            str(study_dir / "best.yaml"), "--steps", "1000", "--out", str(out),
+                            "--no-progress"],
                            capture_output=True, text=True, timeout=300)
     assert train.returncode == 0, train.stderr
     trained = Config.from_json((out / "config.json").read_text())
@@ -285,3 +291,81 @@ def test_a_fresh_sample_run_stops_where_no_whole_iteration_fits(tmp_path: Path) 
     rows = progress_rows(run_dir)
     config = Config.from_json((run_dir / "config.json").read_text())
     assert config.fresh_samples and not math.isnan(float(rows[-1]["average_return"]))
+
+
+def test_a_storage_that_cannot_be_opened_is_one_line_exit_2_nothing_written(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY)
+    root = tmp_path / "tune"
+    assert main(["tune", str(spec), "--root", str(root), "--storage", "nosuchdb://host/x"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cannot open the storage nosuchdb://host/x" in err, err
+    assert not root.exists()
+
+
+CONFIG_FILE = """\
+preset: svrpo
+scale: laptop
+env_id: InvertedPendulum-v5
+max_kl: 0.02
+hidden_sizes: [32, 32]
+batch_size: 500
+minibatch_size: 100
+num_workers: 0
+envs_per_worker: 2
+eval_every: 0
+"""
+
+
+def test_a_config_file_is_the_preset_with_its_fields_for_any_task(tmp_path: Path) -> None:
+    """load_config: the file's preset at its scale with its fields set; another task keeps the
+    preset's per-task values (Ant's three hidden layers at the laptop scale are overridden only
+    because the file sets hidden_sizes); a run's config.json is a config file too."""
+    import svrpo
+
+    path = tmp_path / "best.yaml"
+    path.write_text(CONFIG_FILE)
+    fields = {"max_kl": 0.02, "hidden_sizes": (32, 32), "batch_size": 500, "minibatch_size": 100,
+              "num_workers": 0, "envs_per_worker": 2, "eval_every": 0}
+    assert svrpo.load_config(path) == make_preset("svrpo", "InvertedPendulum-v5", "laptop").replace(**fields)
+    assert svrpo.load_config(path, env_id="Ant-v5", seed=3) == \
+        make_preset("svrpo", "Ant-v5", "laptop").replace(seed=3, **fields)
+    config_json = tmp_path / "config.json"
+    config_json.write_text(svrpo.load_config(path).to_json())
+    assert svrpo.load_config(config_json) == svrpo.load_config(path)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (CONFIG_FILE.replace("max_kl: 0.02", "max_kll: 0.02"), "line 4: unknown config field 'max_kll'"),
+        (CONFIG_FILE.replace("batch_size: 500", "batch_size: lots"), "line 6: batch_size must be an integer"),
+        (CONFIG_FILE.replace("preset: svrpo", "preset: ppo"), "line 1: unknown preset 'ppo'"),
+        (CONFIG_FILE.replace("minibatch_size: 100", "minibatch_size: 1000"), "m) must be <= batch_size"),
+        ("- a list\n", "a config file is a mapping"),
+    ],
+)
+def test_a_bad_config_file_is_one_line_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                              text: str, message: str) -> None:
+    path = tmp_path / "best.yaml"
+    path.write_text(text)
+    out = tmp_path / "run"
+    assert main(["train", "--config", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err and str(path) in err, err
+    assert not out.exists()
+    refused = main(["train", "--config", str(path), "--preset", "trpo", "--out", str(out)])
+    assert refused == 2 and "drop --preset" in capsys.readouterr().err
+
+
+def test_the_api_trains_a_config_file_in_a_fresh_interpreter(tmp_path: Path) -> None:
+    path = tmp_path / "best.yaml"
+    path.write_text(CONFIG_FILE + "total_steps: 1000\n")
+    script = (f"import svrpo\nsvrpo.train(config={str(path)!r}, run_dir={str(tmp_path / 'run')!r}, "
+              "show_progress=False)\n")
+    subprocess.run([sys.executable, "-c", script], check=True, timeout=300,
+                   capture_output=True)
+    trained = Config.from_json((tmp_path / "run" / "config.json").read_text())
+    assert trained == load_config(path)
+    assert len(progress_rows(tmp_path / "run")) == trained.iterations
