@@ -60,6 +60,10 @@ def trials_table(spec: TuneSpec, study: optuna.Study) -> str:
     return out.getvalue()
 
 
+def _count(number: int, noun: str) -> str:
+    return f"{number} {noun}{'' if number == 1 else 's'}"
+
+
 def _cell(value: Any) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return ""
@@ -74,7 +78,7 @@ def best_config_text(spec: TuneSpec, study: optuna.Study, trial: optuna.trial.Fr
     fields = {"env_id": task, **trial_fields(spec, trial.params, task), **spec.overrides}
     header = (f"Best trial of the study {spec.name}: trial {trial.number}, score {float(trial.value):.4f}\n"  # type: ignore[arg-type]
               f"(mean over {', '.join(spec.tasks)} of the final-window {spec.objective.metric} / reference,\n"
-              f"{len(spec.seeds)} seeds each, {spec.steps} environment steps per run).\n"
+              f"{_count(len(spec.seeds), 'seed')} each, {spec.steps} environment steps per run).\n"
               "Train it: svrpo train --config best.yaml [--env TASK] [--steps N]")
     return config_file_text(spec.preset, spec.scale, fields, header)
 
@@ -131,8 +135,9 @@ def report_text(spec: TuneSpec, study: optuna.Study, storage: str, skipped: dict
     counts = {state.name: sum(t.state == state for t in trials) for state in optuna.trial.TrialState}
     rungs = ", ".join(map(str, spec.rung_steps[:-1])) or "none"
     lines = [f"# Study {spec.name}", "",
-             f"{spec.preset} at the {spec.scale} scale on {', '.join(spec.tasks)}; {len(spec.seeds)} "
-             f"seeds per task, {spec.steps} environment steps per run; score: mean over tasks of the "
+             f"{spec.preset} at the {spec.scale} scale on {', '.join(spec.tasks)}; "
+             f"{_count(len(spec.seeds), 'seed')} per task, {spec.steps} environment steps per run; "
+             "score: mean over tasks of the "
              f"{spec.objective.metric} averaged over the last {spec.objective.window:.0%} of the budget, "
              "divided by the task's reference; TPE (seed "
              f"{spec.sampler_seed}), pruner {spec.pruner} at rungs {rungs}.",

@@ -301,8 +301,8 @@ def _run_wave(spec: TuneSpec, root: Path, study: optuna.Study, wave: list[_Trial
     for budget in spec.rung_steps:
         active = [w for w in wave if not w.failure and not w.interrupted and not _told(study, w)]
         # An adopted trial skips the rungs it reported before its tuner died.
-        active = [w for w in active if budget == final
-                  or budget not in study.trials[w.number].intermediate_values]
+        trials = study.get_trials(deepcopy=False)
+        active = [w for w in active if budget == final or budget not in trials[w.number].intermediate_values]
         if not active:
             continue
         _train_to(spec, active, budget, backend, say)
@@ -337,7 +337,7 @@ def _run_wave(spec: TuneSpec, root: Path, study: optuna.Study, wave: list[_Trial
 
 
 def _told(study: optuna.Study, work: _Trial) -> bool:
-    return study.trials[work.number].state.is_finished()
+    return study.get_trials(deepcopy=False)[work.number].state.is_finished()
 
 
 def _told_now(study: optuna.Study, on_told: Callable[[optuna.Study], None] | None) -> None:
