@@ -193,8 +193,8 @@ def test_a_tiny_study_end_to_end_and_its_best_config_trains(tmp_path: Path) -> N
 
 
 def test_killed_tuner_and_killed_run_resume_without_losing_or_repeating_a_trial(tmp_path: Path) -> None:
-    """SIGKILL a trial's training process, then the tuner itself while a later trial trains;
-    the same command again finishes the study: every trial told exactly once, the trials
+    """SIGKILL a trial's training process, then the tuner itself while a later trial trains (whose
+    run then stops by itself); the same command again finishes the study: every trial told exactly once, the trials
     finished before the kill untouched, the interrupted trial's run resumed from its checkpoint
     (its first iteration's row kept, not retrained)."""
     spec = tmp_path / "tiny.yaml"
@@ -223,6 +223,11 @@ def test_killed_tuner_and_killed_run_resume_without_losing_or_repeating_a_trial(
     first_row = progress_rows(run1)[0]
     tuner.kill()
     tuner.wait()
+    # The run of the killed tuner stops by itself (runner.stop_when_orphaned), with a checkpoint.
+    deadline = time.monotonic() + 60
+    while "interrupted" not in (run1 / "train.log").read_text() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert "interrupted: the checkpoint of iteration" in (run1 / "train.log").read_text()
     trials = _study_trials(root)
     assert [t.state.name for t in trials] == ["COMPLETE", "RUNNING"]  # type: ignore[attr-defined]
     assert "resuming from" in (run0 / "train.log").read_text(), "the killed run was not resumed"

@@ -95,14 +95,15 @@ def open_storage(url: str) -> Any:
         raise SpecError(f"cannot open the storage {url}: {one_line(error)}") from None
 
 
-def make_sampler(spec: TuneSpec, trials_so_far: int) -> Any:
-    """TPE seeded by (spec seed + trials so far): the proposal for trial n depends only on the
-    seed and the history, so a resumed study proposes what an uninterrupted one would."""
+def make_sampler(spec: TuneSpec, trial_number: int) -> Any:
+    """TPE seeded by (spec seed + trial number): the proposal for trial n depends only on the
+    seed and the history, so a resumed study proposes what an uninterrupted one would (and a
+    trial's parameters do not depend on how many trials were asked beside it)."""
     import optuna
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-        return optuna.samplers.TPESampler(seed=spec.sampler_seed + trials_so_far,
+        return optuna.samplers.TPESampler(seed=spec.sampler_seed + trial_number,
                                           n_startup_trials=spec.startup_trials)
 
 
@@ -199,13 +200,16 @@ def run_study(spec: TuneSpec, root: Path, study: optuna.Study, backend: Backend,
 
 
 def _ask(spec: TuneSpec, root: Path, study: optuna.Study, held: contextlib.ExitStack) -> _Trial:
-    study.sampler = make_sampler(spec, len(study.get_trials(deepcopy=False)))
+    """A new trial, its parameters drawn at once (so that TPE's constant liar sees them when the
+    next trial of the wave is drawn)."""
     trial = study.ask()
     trial.set_user_attr(_OWNER, _owner())
     directory = trial_directory(spec, root, trial.number)
     held.enter_context(exclusive_writer(directory, "tune trial"))
     record_holder(directory)
-    return _Trial(trial, trial.number, directory)
+    work = _Trial(trial, trial.number, directory)
+    _configure(spec, study, work)
+    return work
 
 
 def _owner() -> str:
@@ -247,6 +251,7 @@ def _adopt_orphans(spec: TuneSpec, root: Path, study: optuna.Study, attempted: s
         rungs = f", rungs reported: {', '.join(map(str, reported))}" if reported else ""
         say(f"resuming trial {frozen.number} (left running by {left_by}{rungs})")
         adopted.append(_Trial(trial, frozen.number, directory))
+        _configure(spec, study, adopted[-1])
     return adopted
 
 
@@ -279,8 +284,10 @@ def suggest(trial: optuna.Trial, param: SearchParam) -> Any:
     return trial.suggest_float(param.name, param.low, param.high, log=param.log)
 
 
-def _configure(spec: TuneSpec, work: _Trial) -> None:
-    """Draw the trial's parameters and build its runs' configs (a failure if one cannot run)."""
+def _configure(spec: TuneSpec, study: optuna.Study, work: _Trial) -> None:
+    """Draw the trial's parameters (an adopted trial reads back those it has) with the sampler
+    seeded for its number, and build its runs' configs (a failure if one cannot run)."""
+    study.sampler = make_sampler(spec, work.number)
     params = {param.name: suggest(work.trial, param) for param in spec.space}
     try:
         for task in spec.tasks:
@@ -295,8 +302,6 @@ def _run_wave(spec: TuneSpec, root: Path, study: optuna.Study, wave: list[_Trial
               on_told: Callable[[optuna.Study], None] | None, say: Callable[[str], None]) -> None:
     import optuna
 
-    for work in wave:
-        _configure(spec, work)
     final = spec.rung_steps[-1]
     for budget in spec.rung_steps:
         active = [w for w in wave if not w.failure and not w.interrupted and not _told(study, w)]
