@@ -194,9 +194,9 @@ def test_a_tiny_study_end_to_end_and_its_best_config_trains(tmp_path: Path) -> N
 
 def test_killed_tuner_and_killed_run_resume_without_losing_or_repeating_a_trial(tmp_path: Path) -> None:
     """SIGKILL a trial's training process, then the tuner itself while a later trial trains (whose
-    run then stops by itself); the same command again finishes the study: every trial told exactly once, the trials
-    finished before the kill untouched, the interrupted trial's run resumed from its checkpoint
-    (its first iteration's row kept, not retrained)."""
+    run then stops by itself); the same command again finishes the study: every trial told
+    exactly once, the trials finished before the kill untouched, the interrupted trial's run
+    resumed from its checkpoint (its first iteration's row kept, not retrained)."""
     spec = tmp_path / "tiny.yaml"
     # Longer runs, so that the kills land while a trial trains: 10000 steps.
     spec.write_text(TINY.replace("steps: 2000", "steps: 10000").replace("pruner: {type: median, rungs: 2, "
