@@ -160,9 +160,11 @@ def test_a_tiny_study_end_to_end_and_its_best_config_trains(tmp_path: Path) -> N
         _check_budget(run_dir, 2000)
         sizes.add(Config.from_json((run_dir / "config.json").read_text()).batch_size)
     study_dir = root / "tiny"
-    for name in ("trials.csv", "best.yaml", "report.md", "history.png", "importances.png",
-                 "parallel_coordinate.png"):
+    for name in ("trials.csv", "best.yaml", "report.md", "history.png", "parallel_coordinate.png"):
         assert (study_dir / name).is_file(), name
+    # Optuna 4.0 (the floor) computes importances with scikit-learn, which svrpo does not need.
+    assert (study_dir / "importances.png").is_file() or \
+        "importances.png: not drawn (Tried to import 'sklearn'" in (study_dir / "report.md").read_text()
     assert (study_dir / "history.png").read_bytes().startswith(b"\x89PNG")
     lines = (study_dir / "trials.csv").read_text().splitlines()
     assert lines[0].startswith("number,state,score,score_InvertedPendulum-v5,max_kl,batch_size,")

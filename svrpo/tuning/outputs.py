@@ -94,7 +94,7 @@ def write_tables(spec: TuneSpec, study: optuna.Study, directory: Path) -> None:
 def write_plots(study: optuna.Study, directory: Path) -> dict[str, str]:
     """Optuna's optimisation history, parameter importances and parallel coordinates as PNG;
     returns the plots that could not be drawn, with why (e.g. importances need two complete
-    trials)."""
+    trials, and scikit-learn on Optuna 4.0)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -108,7 +108,9 @@ def write_plots(study: optuna.Study, directory: Path) -> dict[str, str]:
             warnings.simplefilter("ignore")  # experimental-feature and empty-study warnings
             try:
                 axes = getattr(optuna_plots, function)(study)
-            except (ValueError, RuntimeError, ZeroDivisionError, optuna.exceptions.OptunaError) as error:
+            except (ValueError, RuntimeError, ZeroDivisionError, ImportError,
+                    optuna.exceptions.OptunaError) as error:
+                # ImportError: Optuna 4.0's fANOVA importances need scikit-learn (5.1's do not).
                 skipped[name] = str(error).split("\n")[0]
                 plt.close("all")
                 continue
