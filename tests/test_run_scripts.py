@@ -181,3 +181,34 @@ def test_zoo_trpo_runs_both_arms_as_one_queue_then_evaluates_every_run_150_episo
                for call in calls[1:])
     outputs = sorted((root / "zoo-trpo-eval150").rglob("seed*.txt"))
     assert len(outputs) == 60 and not list((root / "zoo-trpo-eval150").rglob("*.tmp"))
+
+
+def test_equal_budget_tuning_runs_every_study_one_trial_at_a_time_in_turn(tmp_path: Path) -> None:
+    """PROTOCOL.md sections 4 and 7: 20 trials per study, the studies advancing in turn, and the
+    three specs sharing every searched field of the shared space with the same ranges, the same
+    tasks, seeds, budget, sampler and pruner."""
+    from svrpo.tuning.spec import load_tune_spec
+
+    here = ROOT / "results/equal-budget-tuning"
+    calls = _calls(here / "run_tuning.sh", tmp_path, "tune-root")
+    plan = [(Path(call[1]).stem, int(_value(call, "--trials"))) for call in calls]
+    assert plan == [(study, trial) for trial in range(1, 21) for study in ("trpo", "svrpo", "stormpg")]
+    assert all(call[0] == "tune" and _value(call, "--root") == "tune-root" for call in calls)
+    specs = {name: load_tune_spec(here / f"{name}.yaml") for name in ("trpo", "svrpo", "stormpg")}
+    shared = {param.field: param for param in specs["trpo"].space}
+    assert set(shared) == {"max_kl", "batch_size", "gae_lambda", "baseline_lr", "baseline_epochs",
+                           "cg_damping", "normalize_rewards"}
+    for name, spec in specs.items():
+        assert spec.preset == name and spec.scale == "modern" and spec.trials == 20
+        assert (spec.tasks, spec.seeds, spec.steps) == (specs["trpo"].tasks, (300, 301), 1_000_000)
+        assert (spec.sampler_seed, spec.startup_trials, spec.pruner, spec.rungs, spec.pruner_startup_trials) \
+            == (0, 6, "median", 4, 5)
+        assert spec.overrides == {"num_workers": 1, "envs_per_worker": 16, "torch_threads": 1,
+                                  "eval_every": 0}
+        own = {param.field: param for param in spec.space if param.field not in shared}
+        assert {param.field: param for param in spec.space if param.field in shared} == shared
+        assert set(own) == {"trpo": set(), "svrpo": {"inner_steps", "minibatch_size", "fisher_subsample"},
+                            "stormpg": {"inner_steps", "minibatch_size", "storm_momentum"}}[name]
+    svrpo_own = {param.field: param for param in specs["svrpo"].space}
+    assert (svrpo_own["inner_steps"].low, svrpo_own["inner_steps"].high) == (10, 100)  # the paper's J
+    assert (svrpo_own["minibatch_size"].low, svrpo_own["minibatch_size"].high) == (0.02, 0.1)  # its m / N
