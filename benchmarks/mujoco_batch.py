@@ -103,8 +103,8 @@ def check_steppers(env_id: str, snapshot: PolicySnapshot, lockstep_steps: int, n
     for k in range(lockstep_steps):
         indices = list(range(0, num_envs, 2)) if k % 7 == 6 else list(range(num_envs))
         controls = scale_action(snapshot.sample_action(obs[indices], rng).astype(np.float32), low, high)
-        o_ref, r_ref, t_ref = reference.step(indices, controls)
-        o_new, r_new, t_new = tested.step(indices, controls)
+        o_ref, r_ref, t_ref, _ = reference.step(indices, controls)
+        o_new, r_new, t_new, _ = tested.step(indices, controls)
         qpos, qvel = tested.qpos_qvel(indices)
         worst["qpos"] = max(worst["qpos"], _max_diff(np.stack([datas[i].qpos for i in indices]), qpos))
         worst["qvel"] = max(worst["qvel"], _max_diff(np.stack([datas[i].qvel for i in indices]), qvel))

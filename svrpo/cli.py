@@ -131,13 +131,17 @@ def _train(args: argparse.Namespace, extra: list[str]) -> int:
         config = _build_config(args, extra)
         preset = args.preset
         run_dir = Path(args.out) if args.out else _default_out(config, preset)
+        if args.restart_episodes:
+            raise UsageError("--restart-episodes applies to --resume only")
     from svrpo.sampling.envs import env_info
 
     env_info(config.env_id, config.max_episode_steps)  # fail before anything is written
     if config.total_steps % config.steps_per_iteration:
         what = "batch_size" if not config.fresh_samples else "the steps of an iteration (N + (J - 1) m)"
+        at_most = "at most " if config.fresh_samples else ""  # an inner loop that stops early samples fewer
         print(f"note: total_steps is not a multiple of {what}; running {config.iterations} "
-              f"iterations = {config.iterations * config.steps_per_iteration} steps", file=sys.stderr)
+              f"iterations = {at_most}{config.iterations * config.steps_per_iteration} steps",
+              file=sys.stderr)
     if args.resume is None:
         check_run_directory_path(run_dir)  # a file or a foreign directory: before the lock is made
     with contextlib.ExitStack() as held:
@@ -162,7 +166,8 @@ def _train_locked(args: argparse.Namespace, config: Config, preset: str, run_dir
     signal.signal(signal.SIGTERM, raise_keyboard_interrupt)
     try:
         run = train(config, run_dir, resume=args.resume is not None, show_progress=not args.no_progress,
-                    overwrite=args.overwrite, record=RunRecord(preset, args.scale))
+                    overwrite=args.overwrite, record=RunRecord(preset, args.scale),
+                    restart_episodes=args.restart_episodes)
     except KeyboardInterrupt:
         print(f"interrupted; resume with: svrpo train --resume {run_dir}", file=sys.stderr)
         return 130
@@ -176,21 +181,27 @@ def _train_locked(args: argparse.Namespace, config: Config, preset: str, run_dir
 
 def _readable_runs(run_dirs: list[Path]) -> tuple[list[Path], set[str]]:
     """The runs whose config.json and progress.csv parse, and the columns they have; each
-    skipped run is named in one line (a half-written cell in one run must not stop the report)."""
+    skipped run is named in one line (a half-written cell in one run must not stop the report).
+    None readable: one UsageError line saying why (nothing is drawn)."""
     from svrpo.rundir.logging import read_progress
 
     readable: list[Path] = []
     columns: set[str] = set()
+    skipped: list[str] = []
     for run_dir in run_dirs:
         try:
             json.loads((run_dir / "config.json").read_text())["env_id"]  # noqa: B018 - a check
             read_progress(run_dir / "progress.csv")  # every cell must parse
         except (OSError, ValueError, KeyError, TypeError) as error:
-            print(f"skipped {run_dir}: unreadable ({checkpoint_one_line(error)})", file=sys.stderr)
+            skipped.append(f"{run_dir}: unreadable ({checkpoint_one_line(error)})")
             continue
         readable.append(run_dir)
         with open(run_dir / "progress.csv") as handle:  # the header, also of a run with no rows yet
             columns.update(handle.readline().strip().split(","))
+    if not readable and skipped:
+        raise UsageError(f"no readable run to plot: {'; '.join(skipped)}")
+    for line in skipped:
+        print(f"skipped {line}", file=sys.stderr)
     return readable, columns
 
 
@@ -528,6 +539,9 @@ def make_parser() -> argparse.ArgumentParser:
     train.add_argument("--allow-import", action="append", default=[], metavar="MODULE",
                        help="with --resume: allow a config.json naming a 'MODULE:Env' task to import "
                             "MODULE (runs its code)")
+    train.add_argument("--restart-episodes", action="store_true",
+                       help="with --resume: accept that every episode restarts when the env keeps "
+                            "state a checkpoint cannot hold (docs/own-environment.md)")
     train.set_defaults(handler=_train)
     plot = commands.add_parser(
         "plot",

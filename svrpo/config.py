@@ -11,6 +11,7 @@ import dataclasses
 import json
 import math
 import typing
+import weakref
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -201,8 +202,16 @@ class Config:
         return self.total_steps // self.steps_per_iteration
 
     def replace(self, **changes: Any) -> Config:
-        """A validated copy with some fields changed."""
-        return validate(dataclasses.replace(self, **changes))
+        """A validated copy with some fields changed; ConfigError naming the field, the value and
+        what the field allows for an unknown field or a value of another type (no conversion
+        from strings: that is the command line's job). A preset's copy keeps the preset's name
+        (config_origin)."""
+        checked = {name: _checked_value(name, value) for name, value in changes.items()}
+        copy = validate(dataclasses.replace(self, **checked))
+        origin = config_origin(self)
+        if origin is not None:
+            _remember_origin(copy, origin)
+        return copy
 
     def to_json(self) -> str:
         """Stable JSON text (tuples become lists)."""
@@ -252,6 +261,34 @@ def field_docs() -> dict[str, str]:
     return docs
 
 
+_ORIGINS: dict[int, tuple[str, str]] = {}
+"""(preset, scale) by id() of the live Config objects make_preset made (and their replace
+copies); kept outside the object, so that config.json, equality and vars(config) are unchanged."""
+
+
+def _remember_origin(config: Config, origin: tuple[str, str]) -> None:
+    _ORIGINS[id(config)] = origin
+    weakref.finalize(config, _ORIGINS.pop, id(config), None)  # the id may be reused once it is gone
+
+
+def config_origin(config: Config) -> tuple[str, str] | None:
+    """(preset, scale) of a config made by make_preset (and kept through replace), else None:
+    what run.json records, so that plots group API runs by the preset they came from."""
+    return _ORIGINS.get(id(config))
+
+
+def _checked_value(name: str, value: Any) -> Any:
+    """A Python value for field `name` (Config.replace), converted as coerce_field does (an int
+    where a float goes, a list of widths to a tuple); a string only for a string field."""
+    hint = _HINTS.get(name)
+    if (hint is not None and isinstance(value, str) and hint is not str
+            and typing.get_origin(hint) is not Literal):
+        kind = {int: "an integer", float: "a number", bool: "True or False"}.get(
+            hint, "None or a number" if type(None) in typing.get_args(hint) else "a tuple of integers")
+        raise ConfigError(f"{name} must be {kind}; got the string {value!r}")
+    return coerce_field(name, value)
+
+
 def coerce_field(name: str, value: Any) -> Any:
     """Convert a JSON value or a command-line string to the field's type, or raise ConfigError."""
     if name not in _HINTS:
@@ -259,7 +296,7 @@ def coerce_field(name: str, value: Any) -> Any:
 
         close = difflib.get_close_matches(name, field_names(), n=3)
         hint = f" (did you mean {', '.join(close)}?)" if close else ""
-        raise ConfigError(f"unknown config field '{name}'{hint}")
+        raise ConfigError(f"unknown config field '{name}'{hint}; `svrpo fields` lists them all")
     return _coerce(name, _HINTS[name], value)
 
 
@@ -314,7 +351,9 @@ def validate(config: Config) -> Config:
         (c.seed >= 0, "seed must be >= 0"),
         (c.batch_size >= 1, "batch_size (N) must be >= 1"),
         (c.total_steps >= c.steps_per_iteration,
-         "total_steps must be >= batch_size (N) (+ (J - 1) m with a fresh-sample estimator)"),
+         f"total_steps is too few for one iteration: it needs at least "
+         f"{c.steps_per_iteration} (" + ("N + (J - 1) m of a fresh-sample estimator"
+                                         if c.fresh_samples else "batch_size N") + ")"),
         (0 < c.max_kl < math.inf, "max_kl (delta) must be > 0 and finite"),
         (-20.0 <= c.init_log_std <= 20.0, "init_log_std must be in [-20, 20] (std = exp(init_log_std))"),
         (0 < c.fisher_subsample <= 1, "fisher_subsample (nu) must be in (0, 1]"),
@@ -356,7 +395,10 @@ def validate(config: Config) -> Config:
         (0 < c.baseline_lr < math.inf and c.baseline_epochs >= 1 and c.baseline_minibatch_size >= 1,
          "baseline_lr > 0, baseline_epochs >= 1, baseline_minibatch_size >= 1"),
     ]
-    failed = [message for ok, message in checks if not ok]
+    # A check on one field names its value too (the user sees what they gave).
+    failed = [message + (f" (got {message.split()[0]}={getattr(c, message.split()[0])!r})"
+                         if message.split()[0] in _HINTS else "")
+              for ok, message in checks if not ok]
     if failed:
         raise ConfigError("; ".join(failed))
     return c
@@ -519,7 +561,9 @@ def make_preset(name: str, env_id: str = "Hopper-v5", scale: Scale = "modern") -
         fields.update(estimator="svrg", fisher_subsample=0.1, backtrack_ratio=0.5,
                       max_backtracks=10)
         fields.update(_ABLATIONS[name])
-    return validate(Config(**fields))
+    config = validate(Config(**fields))
+    _remember_origin(config, (name, scale))
+    return config
 
 
 def differing_fields(a: Config, b: Config) -> dict[str, tuple[Any, Any]]:

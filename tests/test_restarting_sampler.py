@@ -54,7 +54,7 @@ class FakeSampler:
     def get_state(self) -> dict[str, Any]:
         return dict(self.state)
 
-    def set_state(self, state: dict[str, Any]) -> None:
+    def set_state(self, state: dict[str, Any], restart_episodes: bool = False) -> None:
         self.state = dict(state)
 
     def close(self) -> None:

@@ -140,7 +140,7 @@ def test_the_api_refuses_to_replace_a_run_unless_asked(tmp_path: Path) -> None:
     assert (run_dir / "progress.csv").read_text() == before  # nothing touched
     svrpo.train(config.replace(seed=1), run_dir, show_progress=False, overwrite=True)
     assert '"seed": 1' in (run_dir / "config.json").read_text()
-    assert '"preset": "custom"' in (run_dir / "run.json").read_text()
+    assert '"preset": "trpo"' in (run_dir / "run.json").read_text()  # the preset it came from
     assert (run_dir / "notes.txt").read_text() == "mine"  # the user's file stays
     with pytest.raises(RunDirectoryError, match="not a run directory"):
         svrpo.train(config, tmp_path / "nothing", resume=True, show_progress=False)

@@ -153,7 +153,8 @@ def test_ctrl_c_during_an_update_saves_the_iteration_before_it(reference: Path, 
     assert interrupting.moved_before_interrupt  # the policy had really changed in place
     saved = checkpoint.list_checkpoints(tmp_path / "run" / "checkpoints")
     assert [p.name for p in saved] == ["iter_000002.pt"]
-    train(config, tmp_path / "run", resume=True, show_progress=False)
+    # A resume passes an estimator of the class the run recorded (here: one that never stops).
+    train(config, tmp_path / "run", resume=True, show_progress=False, estimator=_InterruptMidUpdate(at=0))
     _assert_same_run(tmp_path / "run", reference)
 
 

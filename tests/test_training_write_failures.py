@@ -38,8 +38,10 @@ def test_a_write_that_fails_for_lack_of_space_loses_nothing_and_the_run_resumes_
     failed = subprocess.run([*command, str(out)], preexec_fn=cap, capture_output=True, text=True)
     assert failed.returncode == 1
     lines = failed.stderr.strip().splitlines()
-    assert "Traceback" not in failed.stderr and len(lines) == 2, lines  # the start line, the error
-    assert "File too large" in lines[1] and "checkpoint of iteration 6 is intact" in lines[1]
+    # The start line, the stepper line, the error.
+    assert "Traceback" not in failed.stderr and len(lines) == 3, lines
+    assert lines[1].startswith("stepping the envs with")
+    assert "File too large" in lines[2] and "checkpoint of iteration 6 is intact" in lines[2]
     assert checkpoint.load(checkpoint.checkpoint_path(out / "checkpoints", 6))["iteration"] == 6
     resumed = subprocess.run([sys.executable, "-m", "svrpo.cli", "train", "--resume", str(out),
                               "--no-progress"], capture_output=True, text=True)

@@ -26,7 +26,7 @@ from svrpo.models.baselines import Baseline, LinearFeatureBaseline, MlpValueFunc
 from svrpo.models.normalization import RewardNormalizer, RunningMeanStd
 from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.sampling.restarting import RestartingSampler
-from svrpo.sampling.sampler import Sampler
+from svrpo.sampling.sampler import Sampler, uncaptured_state
 from svrpo.tools.allocator import keep_freed_memory
 
 MUST_MATCH = ("env_id", "hidden_sizes", "baseline", "baseline_hidden_sizes", "normalize_observations",
@@ -64,6 +64,9 @@ class Run:
     nonfinite_batches: int = 0
     """Batches whose update was refused: non-finite data, or an update that made parameters
     non-finite (then undone)."""
+    user_estimator: str | None = None
+    """"module.Class" of a user's estimator object in place of config.estimator's (None: the
+    config's): a resume must pass one of the same class."""
 
     @property
     def generator(self) -> torch.Generator:
@@ -109,6 +112,7 @@ class Run:
             "env_steps": self.env_steps,
             "wall_time": self.wall_time,
             "nonfinite_batches": self.nonfinite_batches,
+            "user_estimator": self.user_estimator,
             "progress_rows": self.iteration,  # progress.csv holds one row per completed iteration
             "progress_csv": progress_csv,
             **self.learned_state(),
@@ -126,9 +130,12 @@ class Run:
                                   else self.reward_normalizer.state_dict()),
         }
 
-    def load_state_dict(self, state: dict[str, Any], source: object = "the state") -> None:
+    def load_state_dict(self, state: dict[str, Any], source: object = "the state",
+                        restart_episodes: bool = False) -> None:
         """Load state_dict output into a freshly built run; CheckpointError naming `source` if it
-        does not fit (another task, network shape, sampler layout, or a malformed entry)."""
+        does not fit (another task, network shape, sampler layout, another estimator class, or a
+        malformed entry), or if the envs held state it could not capture and restart_episodes
+        is not given (then every episode restarts: see Sampler.set_state)."""
         try:
             saved = Config.from_json(state["config"])
         except (ConfigError, ValueError, TypeError, KeyError) as error:
@@ -139,6 +146,15 @@ class Run:
                     f"{source} was written with {name}={getattr(saved, name)!r}, "
                     f"this run has {name}={getattr(self.config, name)!r}"
                 )
+        if "user_estimator" in state:  # checkpoints written before it was recorded cannot tell
+            _check_estimator_class(state["user_estimator"], self.user_estimator, self.config, source)
+        uncaptured = uncaptured_state(state["sampler"]) if isinstance(state.get("sampler"), dict) else []
+        if uncaptured and not restart_episodes:
+            raise CheckpointError(
+                f"{source}: the environment keeps state svrpo cannot save ({', '.join(uncaptured)}), "
+                "so its episodes cannot continue exactly; resume with --restart-episodes (API: "
+                "restart_episodes=True) to accept that every episode restarts "
+                "(docs/own-environment.md)")
         try:
             self.load_learned_state(state)
             streams = state.get("streams")
@@ -149,7 +165,7 @@ class Run:
             self.parts.load_state_dict(state.get("parts", {}))
             torch.set_rng_state(state["torch_rng"])
             np.random.set_state(state["numpy_rng"])
-            self.sampler.set_state(state["sampler"])
+            self.sampler.set_state(state["sampler"], bool(uncaptured) and restart_episodes)
             if self.reward_normalizer is not None:
                 self.reward_normalizer.load_state_dict(state["reward_normalizer"])
             self.iteration = int(state["iteration"])
@@ -160,6 +176,19 @@ class Run:
             raise CheckpointError(
                 f"{source} does not fit this run: {type(error).__name__}: {one_line(error)}"
             ) from None
+
+
+def _check_estimator_class(saved: str | None, given: str | None, config: Config, source: object) -> None:
+    """CheckpointError unless a resume uses the estimator the run was trained with."""
+    if saved == given:
+        return
+    if given is None:
+        raise CheckpointError(f"{source} was trained with the estimator {saved} (a user's class); "
+                              "resume it through the API with an estimator of that class "
+                              "(svrpo.train(..., estimator=..., resume=True))")
+    trained = f"the estimator {saved}" if saved else f"config.estimator {config.estimator!r}"
+    raise CheckpointError(f"{source} was trained with {trained}, not {given}: resume it with "
+                          f"{'an estimator of that class' if saved else 'no estimator argument'}")
 
 
 def make_sampler(config: Config) -> Sampler:
@@ -210,4 +239,10 @@ def build_run(config: Config, estimator: GradientEstimator | None = None) -> Run
         parts=update_parts(config, estimator, streams),
         streams=streams,
         reward_normalizer=reward_normalizer,
+        user_estimator=None if estimator is None else estimator_class_name(estimator),
     )
+
+
+def estimator_class_name(estimator: GradientEstimator) -> str:
+    """"module.Class" of an estimator object, as run.json and checkpoints record it."""
+    return f"{type(estimator).__module__}.{type(estimator).__qualname__}"

@@ -201,7 +201,7 @@ def prepare(job: RunJob) -> None:
     if not (job.run_dir / "config.json").is_file():
         write_config(job.run_dir, job.config)
     write_meta(job.run_dir, job.preset, job.scale, keep_existing=True, experiment=job.experiment,
-               **stepper_record(job.config.env_id))
+               **stepper_record(job.config.env_id, job.config.max_episode_steps))
 
 
 def execute(run_dir: Path) -> JobResult:

@@ -82,12 +82,23 @@ def _iteration(cell: str) -> int | float:
 
 
 def read_progress(path: Path) -> list[dict[str, float]]:
-    """progress.csv as a list of rows of floats (empty cells become nan)."""
+    """progress.csv as a list of rows of floats (empty cells become nan); ValueError naming the
+    line for a row cut short or overlong (a file damaged or cut mid-row) or a cell that is no
+    number, so a damaged file is never drawn as a blank or one-point curve."""
+    rows: list[dict[str, float]] = []
     with open(path, newline="") as handle:
-        return [
-            {key: float(value) if value not in ("", None) else math.nan for key, value in row.items()}
-            for row in csv.DictReader(handle)
-        ]
+        reader = csv.DictReader(handle)
+        for row in reader:
+            if None in row or None in row.values():
+                cells = sum(value is not None for key, value in row.items() if key is not None)
+                cells += len(row.get(None) or [])
+                raise ValueError(f"{path} line {reader.line_num} has {cells} cells where the "
+                                 f"header has {len(reader.fieldnames or [])} (a row cut short or damaged)")
+            try:
+                rows.append({key: float(value) if value != "" else math.nan for key, value in row.items()})
+            except ValueError as error:
+                raise ValueError(f"{path} line {reader.line_num}: {error}") from None
+    return rows
 
 
 class RunLogger:

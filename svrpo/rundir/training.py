@@ -25,9 +25,11 @@ from svrpo.rundir.run_files import claim_run_directory
 from svrpo.rundir.run_lock import exclusive_writer, record_holder
 from svrpo.rundir.run_record import write_config, write_meta
 from svrpo.sampling.batch_step import stepper_record
+from svrpo.sampling.sampler import uncaptured_state
 
 Callback = Callable[[dict[str, Any]], Any]
-"""Called after every iteration with its progress.csv row; a falsy return stops the run."""
+"""Called after every iteration with its progress.csv row; returning False stops the run (any
+other value, None included, lets it go on)."""
 
 
 @dataclass(frozen=True)
@@ -40,12 +42,25 @@ class RunRecord:
 
 __all__ = ["TrainingError", "WriteFailedError", "train"]
 
+_STEPPER_WORDS = {
+    "gym": "Gymnasium's env.step (stepper gym: the env as built, wrappers included)",
+    "vector": "the batched MuJoCo logic (stepper vector: the registered task, bit-exact)",
+    "batch": "mujoco.batch (stepper batch: the registered task, bit-exact)",
+}
+"""What each sampler stepper (batch_step.choose_stepper) means, as a run prints it."""
+
 
 class WriteFailedError(TrainingError):
     """A file of the run could not be written (disk full, ...); what was written before is intact."""
 
 
-def _resume(run: Run, run_dir: Path) -> list[str]:
+def _read_progress(progress: Path) -> str:
+    """progress.csv's exact text (its CRLF row endings kept, as the checkpoint must restore them)."""
+    with open(progress, newline="") as handle:
+        return handle.read()
+
+
+def _resume(run: Run, run_dir: Path, restart_episodes: bool = False) -> list[str]:
     """Restore the newest readable checkpoint and progress.csv as it was then; notes to print."""
     directory = run_dir / "checkpoints"
     checkpoint.remove_stale_temporaries(directory)
@@ -54,8 +69,12 @@ def _resume(run: Run, run_dir: Path) -> list[str]:
         _restore_progress(progress, "")
         return ["no checkpoint to resume from: starting at iteration 0"]
     state, path, warnings = checkpoint.load_latest(directory)
-    run.load_state_dict(state, path)
+    run.load_state_dict(state, path, restart_episodes)
     notes = [f"warning: {warning}" for warning in warnings]
+    uncaptured = uncaptured_state(state["sampler"])
+    if uncaptured and restart_episodes:
+        notes.append(f"warning: every episode restarts (the env's {', '.join(uncaptured)} could not "
+                     "be saved): from here the run differs from an uninterrupted one")
     notes.append(f"resuming from {path} (iteration {run.iteration})")
     if "progress_csv" in state:
         _restore_progress(progress, str(state["progress_csv"]))
@@ -86,7 +105,8 @@ def _truncate_progress(progress: Path, iteration: int) -> list[str]:
 
 def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bool = True,
           estimator: GradientEstimator | None = None, *, overwrite: bool = False,
-          callback: Callback | None = None, record: RunRecord | None = None) -> Run:
+          callback: Callback | None = None, record: RunRecord | None = None,
+          restart_episodes: bool = False) -> Run:
     """Train to config.total_steps, writing config.json, progress.csv, TensorBoard, checkpoints.
 
     resume=True continues from the newest readable checkpoint in run_dir (an older one if the
@@ -99,10 +119,12 @@ def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bo
 
     `estimator`: a user's gradient estimator in place of config.estimator's (see build_run); a
     resume must pass the same one again (config.json cannot record an object).
-    `callback(row)`: called after every iteration with its progress row; a falsy return stops
+    `callback(row)`: called after every iteration with its progress row; returning False stops
     the run after checkpointing that iteration (resume continues it, as after Ctrl-C).
     `record`: written to run.json for a new run, with the stepper the sampling workers use and
     the MuJoCo version (batch_step.stepper_record).
+    `restart_episodes`: resume a run whose env holds state the checkpoint could not capture,
+    with every episode restarted (refused without it: Run.load_state_dict).
     """
     with exclusive_writer(run_dir):  # one writer per run (re-entrant: the CLI may hold it already)
         notes = claim_run_directory(run_dir, resume, overwrite)
@@ -111,12 +133,14 @@ def train(config: Config, run_dir: Path, resume: bool = False, show_progress: bo
             write_config(run_dir, config)
             if record is not None:  # with the workers' stepper and the MuJoCo version
                 write_meta(run_dir, record.preset, record.scale,
-                           **{**record.extra, **stepper_record(config.env_id)})
-        return _train(config, run_dir, resume, show_progress, estimator, callback, notes)
+                           **{**record.extra, **stepper_record(config.env_id, config.max_episode_steps)})
+        return _train(config, run_dir, resume, show_progress, estimator, callback, notes,
+                      restart_episodes)
 
 
 def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
-           estimator: GradientEstimator | None, callback: Callback | None, notes: list[str]) -> Run:
+           estimator: GradientEstimator | None, callback: Callback | None, notes: list[str],
+           restart_episodes: bool = False) -> Run:
     """train() once this process holds the run directory's writer lock and has claimed it."""
     checkpoints = run_dir / "checkpoints"
     progress = run_dir / "progress.csv"
@@ -124,14 +148,19 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
     try:
         if not resume:
             _restore_progress(progress, "")  # a fresh start: no rows of an earlier run
-        notes = notes + (_resume(run, run_dir) if resume else [])
+        notes = notes + (_resume(run, run_dir, restart_episodes) if resume else [])
+        notes.append(f"stepping the envs with {_STEPPER_WORDS[run.sampler.stepper]}")
+        uncaptured = uncaptured_state(run.sampler.get_state())
+        if uncaptured:
+            notes.append(f"note: the env keeps state a checkpoint cannot hold ({', '.join(uncaptured)}): "
+                         "resuming this run will need --restart-episodes (docs/own-environment.md)")
         write_config(run_dir, config)  # on resume only if it changed (e.g. more total_steps)
         total = config.iterations * config.steps_per_iteration
         logger = RunLogger(run_dir, total, run.env_steps, show_progress)
         for note in notes:
             logger.message(note)
         record_holder(run_dir)  # from here on this process writes the run
-        last_state = run.state_dict(progress.read_text() if progress.exists() else "")
+        last_state = run.state_dict(_read_progress(progress) if progress.exists() else "")
         saved_iteration = run.iteration if resume else -1
         try:
             while run.iteration < config.iterations:
@@ -140,8 +169,8 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
                     logger.message(warning)
                 row = result.progress_row()
                 logger.log(row)
-                last_state = run.state_dict(progress.read_text())
-                stop = callback is not None and not callback(row)
+                last_state = run.state_dict(_read_progress(progress))
+                stop = callback is not None and callback(row) is False
                 if (run.iteration % config.checkpoint_every == 0 or run.iteration == config.iterations
                         or stop):
                     checkpoint.save_atomic(last_state, checkpoint.checkpoint_path(checkpoints, run.iteration))

@@ -34,7 +34,8 @@ import mujoco
 import numpy as np
 
 from svrpo.sampling.envs import make_env
-from svrpo.sampling.vector_step import TASKS, VectorStep, _is_default
+from svrpo.sampling.gym_step import GymStep
+from svrpo.sampling.vector_step import TASKS, VectorStep, is_registered_default
 
 
 def _import_mujoco_batch() -> ModuleType | None:
@@ -48,8 +49,11 @@ def _import_mujoco_batch() -> ModuleType | None:
 MUJOCO_BATCH: ModuleType | None = _import_mujoco_batch()
 """The mujoco.batch module (MuJoCo >= 4.0), None where it is missing: then "auto" is VectorStep."""
 
-StepperName = Literal["auto", "vector", "batch"]
-"""A worker's physics stepper: "auto" (STEPPER_BY_TASK), or VectorStep / BatchStep forced."""
+StepperKind = Literal["gym", "vector", "batch"]
+"""How a worker steps its envs: Gymnasium's own env.step (GymStep), or the batched logic of a
+registered MuJoCo task (VectorStep, BatchStep)."""
+StepperName = Literal["auto", "gym", "vector", "batch"]
+"""A stepper asked for: "auto" (choose_stepper), or one StepperKind forced."""
 
 STEPPER_BY_TASK: dict[str, Literal["vector", "batch"]] = {
     # BENCHMARKS.md, "Sampling with mujoco.batch" (benchmarks/results/mujoco_batch.json): bit-exact
@@ -64,8 +68,8 @@ STEPPER_BY_TASK: dict[str, Literal["vector", "batch"]] = {
     # benchmarks/results/batch_step_sampler*.json):
     # the 2 x 8 Sampler takes 0.89-1.00x the wall and 0.91-0.98x the CPU time per step, bit-exact.
 }
-"""The stepper "auto" picks per task id; any task not listed (non-MuJoCo, other versions, a
-user's env) uses VectorStep, which itself falls back to Gymnasium's step where it has no logic."""
+"""The stepper "auto" picks per task id among the batched ones; a task not listed here or in
+vector_step.TASKS (non-MuJoCo, other versions, a user's env or wrappers) steps through Gymnasium."""
 
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 
@@ -75,39 +79,49 @@ def uses_batch_step(env_id: str) -> bool:
     return STEPPER_BY_TASK.get(env_id) == "batch"
 
 
-def choose_stepper(env_id: str, env: gym.Env, stepper: StepperName = "auto") -> Literal["vector", "batch"]:
-    """The one place a worker's stepper is chosen, for env (made by envs.make_env(env_id)):
-    "batch" where STEPPER_BY_TASK says so, the registration is the default task that VectorStep's
-    logic reproduces and mujoco.batch exists (MUJOCO_BATCH), else "vector". stepper="vector" or
-    "batch" forces one (benchmarks, tests); ValueError for "batch" on a task without batched logic
-    or under a MuJoCo without mujoco.batch (forced, so no silent substitute)."""
-    if stepper not in ("auto", "vector", "batch"):
-        raise ValueError(f"stepper must be 'auto', 'vector' or 'batch', got {stepper!r}")
-    if stepper == "vector":
-        return "vector"
-    supported = env_id in TASKS and _is_default(env_id, env.unwrapped)
-    if stepper == "batch":
-        if not supported:
-            raise ValueError(f"BatchStep has no batched logic for {env_id!r} (tasks: {sorted(TASKS)})")
-        if MUJOCO_BATCH is None:
+def choose_stepper(env_id: str, env: gym.Env, stepper: StepperName = "auto") -> StepperKind:
+    """The one place that decides how env_id's envs are stepped (env: one made by
+    envs.make_env(env_id)).
+
+    The batched logic is used only where it is provably the same env: a registered MuJoCo task
+    of TASKS, unwrapped and with its default kwargs (vector_step.is_registered_default); there
+    "auto" picks BatchStep where STEPPER_BY_TASK says so and mujoco.batch exists (MUJOCO_BATCH),
+    else VectorStep. Every other env (a user's wrappers, class or kwargs) steps through
+    Gymnasium's env.step ("gym"). stepper="gym", "vector" or "batch" forces one (benchmarks,
+    tests); ValueError for "vector" or "batch" on an env without batched logic, or for "batch"
+    under a MuJoCo without mujoco.batch (forced, so no silent substitute).
+    """
+    if stepper not in ("auto", "gym", "vector", "batch"):
+        raise ValueError(f"stepper must be 'auto', 'gym', 'vector' or 'batch', got {stepper!r}")
+    if stepper == "gym":
+        return "gym"
+    fast = env_id in TASKS and is_registered_default(env_id, env)
+    if stepper != "auto":
+        if not fast:
+            raise ValueError(f"the {stepper!r} stepper has no batched logic for {env_id!r} as built "
+                             f"(tasks: {sorted(TASKS)}, unwrapped, default kwargs)")
+        if stepper == "batch" and MUJOCO_BATCH is None:
             raise ValueError(f"stepper 'batch' needs mujoco.batch (MuJoCo >= 4.0), this is MuJoCo "
                              f"{mujoco.__version__}; use 'auto' or 'vector' (the same batches)")
-        return "batch"
-    return "batch" if supported and uses_batch_step(env_id) and MUJOCO_BATCH is not None else "vector"
+        return stepper
+    if not fast:
+        return "gym"
+    return "batch" if uses_batch_step(env_id) and MUJOCO_BATCH is not None else "vector"
 
 
 def make_stepper(env_id: str, envs: Sequence[gym.Env],
-                 stepper: StepperName = "auto") -> VectorStep | BatchStep:
+                 stepper: StepperName = "auto") -> GymStep | VectorStep | BatchStep:
     """The stepper choose_stepper picks for envs (made by envs.make_env(env_id))."""
-    if choose_stepper(env_id, envs[0], stepper) == "batch":
-        return BatchStep(env_id, envs)
-    return VectorStep(env_id, envs)
+    kind = choose_stepper(env_id, envs[0], stepper)
+    if kind == "gym":
+        return GymStep(envs)
+    return VectorStep(env_id, envs) if kind == "vector" else BatchStep(env_id, envs)
 
 
 _warned_no_batch = False
 
 
-def stepper_record(env_id: str) -> dict[str, str]:
+def stepper_record(env_id: str, max_episode_steps: int | None = None) -> dict[str, str]:
     """{"stepper": what "auto" gives env_id's workers, "mujoco": the MuJoCo version}, for run.json.
 
     The parent calls the workers' own choose_stepper (same interpreter, same packages), once
@@ -115,18 +129,16 @@ def stepper_record(env_id: str) -> dict[str, str]:
     process: the workers themselves stay silent, so a run warns once, not once per worker).
     """
     global _warned_no_batch
-    chosen: str = "vector"
-    if uses_batch_step(env_id):  # only then does the choice depend on the env itself
-        env = make_env(env_id)
-        try:
-            chosen = choose_stepper(env_id, env)
-            if chosen == "vector" and MUJOCO_BATCH is None and not _warned_no_batch:
-                _warned_no_batch = True
-                warnings.warn(f"MuJoCo {mujoco.__version__} has no mujoco.batch (MuJoCo >= 4.0): {env_id}'s "
-                              "workers step with VectorStep instead of BatchStep (the same batches, "
-                              "somewhat slower; docs/dependencies.md)", RuntimeWarning, stacklevel=2)
-        finally:
-            env.close()
+    env = make_env(env_id, max_episode_steps)
+    try:
+        chosen = choose_stepper(env_id, env)
+    finally:
+        env.close()
+    if uses_batch_step(env_id) and chosen == "vector" and MUJOCO_BATCH is None and not _warned_no_batch:
+        _warned_no_batch = True
+        warnings.warn(f"MuJoCo {mujoco.__version__} has no mujoco.batch (MuJoCo >= 4.0): {env_id}'s "
+                      "workers step with VectorStep instead of BatchStep (the same batches, "
+                      "somewhat slower; docs/dependencies.md)", RuntimeWarning, stacklevel=2)
     return {"stepper": chosen, "mujoco": mujoco.__version__}
 
 
@@ -214,9 +226,10 @@ class BatchStep:
         """Copies of (qpos, qvel) of the simulations indices, (n, nq) and (n, nv)."""
         return self._qpos[list(indices)], self._qvel[list(indices)]
 
-    def step(self, indices: Sequence[int], controls: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Apply controls[j] to env indices[j] -> (observations, rewards, terminated), exactly
-        VectorStep.step's."""
+    def step(self, indices: Sequence[int], controls: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Apply controls[j] to env indices[j] -> (observations, rewards, terminated, truncated),
+        exactly VectorStep.step's."""
         logic, count = self.logic, len(indices)
         full = count == len(self.envs)
         at: Any = slice(None) if full else list(indices)
@@ -237,4 +250,4 @@ class BatchStep:
         velocity = (after - self._positions[at]) / self._dt
         self._positions[at] = after
         observations, rewards, terminated = logic.outcome(self._bases[0], fields, velocity, controls)
-        return observations, rewards, np.asarray(terminated, dtype=bool)
+        return observations, rewards, np.asarray(terminated, dtype=bool), np.zeros(count, dtype=bool)

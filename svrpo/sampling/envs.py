@@ -85,6 +85,10 @@ def env_id_of(factory: Callable[[], gym.Env]) -> str:
     """The "module:function" id of a user's env factory: a function at the top level of an
     importable module (spawned sampling workers import the module and call it themselves)."""
     module, name = getattr(factory, "__module__", None), getattr(factory, "__qualname__", "")
+    if module == "__main__":
+        raise EnvError(f"the environment factory {name or factory!r} is defined in the script being "
+                       "run (__main__), which the sampling workers cannot import: move it into a "
+                       "module (e.g. my_envs.py beside the script) and import it from there")
     if not module or not name or "<" in name or "." in name:
         raise EnvError(f"{factory!r} cannot be used as an environment factory: pass a function "
                        "defined at the top level of a module (not a lambda, a nested function or "
@@ -180,34 +184,43 @@ def scale_action(action: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.nd
 
 
 def get_env_state(env: gym.Env) -> dict[str, Any]:
-    """Everything an env needs to continue bit-exactly, as plain numpy/python values.
+    """Everything of an env's state that svrpo can capture, as plain numpy/python values.
 
-    MuJoCo envs: the MuJoCo integration state. Any other env (classic control, a user's own):
-    its unwrapped object's numeric, boolean, string and None attributes (`state`, `last_u`, ...),
-    which is all of the dynamic state of Gymnasium's classic-control tasks; an env that keeps its
-    state in other objects resumes from these attributes only. Both: the env's reset generator
-    and the time-limit counter. Observations and episode bookkeeping are the caller's business.
+    MuJoCo envs: the MuJoCo integration state. Every env and each of its wrappers: its numeric,
+    boolean, string and None attributes and tuples of them (`state`, `last_u`, a wrapper's step
+    counter, ...), which is all of the dynamic state of Gymnasium's own tasks and wrappers; and
+    the env's reset generator. Attributes held in other objects (a list, a dict, an object of
+    the user's) cannot be captured: their names are listed under "uncaptured", and a resume
+    from such a state is refused unless episodes may restart (docs/own-environment.md).
+    Observations and episode bookkeeping are the caller's business.
     """
     base: Any = env.unwrapped
+    layers = _wrappers(env)
+    uncaptured = [f"{type(layer).__name__}.{name} ({type(value).__name__})"
+                  for layer in [*layers, base] for name, value in vars(layer).items()
+                  if not _plain(value) and not _configuration(name, value)]
     state: dict[str, Any] = {
         "np_random": base.np_random.bit_generator.state,
         "elapsed_steps": _elapsed_steps(env),
+        "attributes": _plain_attributes(base),
+        "wrappers": [_plain_attributes(layer) for layer in layers],
+        "uncaptured": uncaptured,
     }
     if _is_mujoco(base):
         model, data = base.model, base.data
         physics = np.empty(mujoco.mj_stateSize(model, _PHYSICS_STATE), dtype=np.float64)
         mujoco.mj_getState(model, data, physics, _PHYSICS_STATE)
         state["physics"] = physics
-    else:
-        state["attributes"] = {name: value.copy() if isinstance(value, np.ndarray) else value
-                               for name, value in vars(base).items()
-                               if _plain(value) and name != "_np_random"}
     return state
 
 
 def set_env_state(env: gym.Env, state: dict[str, Any]) -> None:
     """Restore a state taken by get_env_state on an env of the same id."""
     base = env.unwrapped
+    # States written before wrappers were captured hold none (and MuJoCo ones no attributes).
+    for layer, attributes in zip(_wrappers(env), state.get("wrappers", []), strict=False):
+        _restore_attributes(layer, attributes)
+    _restore_attributes(base, state.get("attributes", {}))
     if "physics" in state:
         model, data = _mujoco_handles(env)
         physics = np.asarray(state["physics"], dtype=np.float64)
@@ -219,19 +232,54 @@ def set_env_state(env: gym.Env, state: dict[str, Any]) -> None:
         # step, so anything the env reads before its next mj_step matches the original run.
         mujoco.mj_forward(model, data)
         mujoco.mj_rnePostConstraint(model, data)
-    else:
-        for name, value in state["attributes"].items():
-            setattr(base, name, value.copy() if isinstance(value, np.ndarray) else value)
     base.np_random.bit_generator.state = state["np_random"]
     if state["elapsed_steps"] is not None:
         env.set_wrapper_attr("_elapsed_steps", int(state["elapsed_steps"]), force=False)
 
 
+def _wrappers(env: gym.Env) -> list[gym.Wrapper]:
+    """env's wrappers, outermost first."""
+    layers: list[gym.Wrapper] = []
+    layer: Any = env
+    while isinstance(layer, gym.Wrapper):
+        layers.append(layer)
+        layer = layer.env
+    return layers
+
+
+def _plain_attributes(layer: Any) -> dict[str, Any]:
+    return {name: value.copy() if isinstance(value, np.ndarray) else value
+            for name, value in vars(layer).items() if _plain(value) and name != "_np_random"}
+
+
+def _restore_attributes(layer: Any, attributes: dict[str, Any]) -> None:
+    for name, value in attributes.items():
+        setattr(layer, name, value.copy() if isinstance(value, np.ndarray) else value)
+
+
 def _plain(value: Any) -> bool:
-    """A value get_env_state keeps: a number, bool, string, None or numeric/boolean array."""
+    """A value get_env_state keeps: a number, bool, string, None, numeric/boolean array, or a
+    tuple of these (immutable: replaced, never changed in place)."""
     if isinstance(value, np.ndarray):
         return value.dtype.kind in "biuf"
+    if isinstance(value, tuple):
+        return all(_plain(item) for item in value)
     return value is None or isinstance(value, (bool, int, float, str, np.generic))
+
+
+_CONFIGURATION_NAMES = frozenset({
+    "_saved_kwargs", "_ezpickle_args", "_ezpickle_kwargs", "metadata", "_metadata", "spec",
+    "_cached_spec", "observation_structure", "_np_random", "_previous_data", "mujoco_renderer",
+    "screen", "clock", "viewer", "env"})
+"""Attributes of Gymnasium's envs and wrappers that are construction arguments, rendering
+handles or the passive checker's scratch, not state a step reads back."""
+
+
+def _configuration(name: str, value: Any) -> bool:
+    """Whether an attribute that is not plain is fixed at construction (spaces, functions, the
+    MuJoCo model and data: the data is the physics state, captured whole), not episode state."""
+    return (name in _CONFIGURATION_NAMES or callable(value)
+            or isinstance(value, (gym.Space, gym.Env, mujoco.MjModel, mujoco.MjData)))
 
 
 def _is_mujoco(base: Any) -> bool:

@@ -16,7 +16,7 @@ import numpy as np
 
 from svrpo.errors import TrainingError
 from svrpo.sampling.policy_snapshot import PolicySnapshot
-from svrpo.sampling.sampler import Batch, Sampler, WorkerDiedError
+from svrpo.sampling.sampler import Batch, Sampler, WorkerDiedError, uncaptured_state
 
 MAX_RESTARTS = 3
 """Fresh worker sets tried for one call whose workers keep dying, before SamplerGaveUpError."""
@@ -57,6 +57,11 @@ class RestartingSampler:
     def evaluate(self, snapshot: PolicySnapshot, episodes: int, seed: int) -> np.ndarray:
         return self._with_workers(lambda sampler: sampler.evaluate(snapshot, episodes, seed))
 
+    @property
+    def stepper(self) -> str:
+        """How the workers step their envs ("gym", "vector" or "batch": Sampler.stepper)."""
+        return self._sampler.stepper
+
     def take_warnings(self) -> list[str]:
         """The restart warnings since the last call, in order (the list is emptied)."""
         taken, self.warnings = self.warnings, []
@@ -66,9 +71,9 @@ class RestartingSampler:
         """The state after the last completed sample() (what a checkpoint saves)."""
         return self._state
 
-    def set_state(self, state: dict[str, Any]) -> None:
-        self._sampler.set_state(state)
-        self._state = state
+    def set_state(self, state: dict[str, Any], restart_episodes: bool = False) -> None:
+        self._sampler.set_state(state, restart_episodes)
+        self._state = self._sampler.get_state() if restart_episodes else state
 
     def worker_cpu_seconds(self) -> float:
         """CPU seconds used so far by the current workers (a restarted set starts from 0)."""
@@ -84,14 +89,23 @@ class RestartingSampler:
                 if attempt > 0:
                     self._sampler.close()
                     self._sampler = self._make()
-                    self._sampler.set_state(self._state)
+                    # An env whose state was not captured whole cannot continue its episodes:
+                    # they restart (said in the warning), rather than continue half-restored.
+                    if uncaptured_state(self._state):
+                        self._sampler.set_state(self._state, restart_episodes=True)
+                    else:
+                        self._sampler.set_state(self._state)
                     self.restarts += 1
                 return call(self._sampler)
             except WorkerDiedError as error:
                 failure = str(error).split(";")[0]  # the rest is advice meant for direct Sampler users
                 if attempt < self.max_restarts:
+                    uncaptured = uncaptured_state(self._state)
+                    restart = (f" (every episode restarts: the env's {', '.join(uncaptured)} could "
+                               "not be saved)" if uncaptured else "")
                     self.warnings.append(f"warning: {self.label}: {failure}; restarting the sampling "
-                                         "workers from the last recorded state and repeating the call")
+                                         f"workers from the last recorded state{restart} and "
+                                         "repeating the call")
         self._sampler.close()
         raise SamplerGaveUpError(f"sampling workers died {self.max_restarts + 1} times in a row in "
                                  f"{self.label}; giving up (last: {failure})")

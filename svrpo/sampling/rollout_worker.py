@@ -20,6 +20,7 @@ import numpy as np
 
 from svrpo.sampling.batch_step import BatchStep, StepperName, make_stepper
 from svrpo.sampling.envs import get_env_state, make_env, scale_action, set_env_state
+from svrpo.sampling.gym_step import GymStep
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.vector_step import VectorStep
 
@@ -67,9 +68,11 @@ class RolloutWorker:
     episode early; such a cut is a truncation like the time limit (bootstrapped), but the cut
     episode is not reported among the completed episodes, whose returns must be comparable.
 
-    `stepper` picks the physics stepper (batch_step.make_stepper): "auto" uses BatchStep for the
-    tasks where it was measured faster (batch_step.STEPPER_BY_TASK), VectorStep elsewhere;
-    both give bit-identical results, so the choice never changes what is sampled.
+    `stepper` picks how envs are stepped (batch_step.choose_stepper): a registered MuJoCo task as
+    Gymnasium ships it uses batched logic (VectorStep, or BatchStep where it was measured
+    faster), bit-identical to Gymnasium's step; every other env (wrappers, a user's class or
+    kwargs) steps through its own env.step (GymStep), so it trains as built. An episode ends
+    when the env terminates or truncates (its own wrappers) or at the worker's time limit.
     """
 
     def __init__(
@@ -92,9 +95,9 @@ class RolloutWorker:
         self._high = np.asarray(space.high, dtype=np.float64)
         self._rng = np.random.default_rng(np.random.SeedSequence([seed, worker_index]))
         first = worker_index * num_envs
-        # The wrappers are bypassed while sampling (VectorStep, BatchStep); the time limit is
-        # applied here.
-        self._stepper: VectorStep | BatchStep = make_stepper(env_id, self.envs, stepper)
+        # VectorStep and BatchStep bypass the (default) wrappers, GymStep steps through them; the
+        # time limit and the staggering cuts are applied here in both cases.
+        self._stepper: GymStep | VectorStep | BatchStep = make_stepper(env_id, self.envs, stepper)
         spec = self.envs[0].spec
         assert spec is not None and spec.max_episode_steps is not None  # make_env sets a limit
         self._time_limit = int(spec.max_episode_steps)
@@ -140,19 +143,20 @@ class RolloutWorker:
             sampled = snapshot.sample_action(current, self._rng).astype(np.float32)
             controls = scale_action(sampled, self._low, self._high)
             obs[k, at], actions[k, at], timesteps[k, at] = current, sampled, self._timestep[at]
-            observations, step_rewards, step_terminated = self._stepper.step(
+            observations, step_rewards, step_terminated, env_truncated = self._stepper.step(
                 everyone_list if full else active.tolist(), controls
             )
             self._timestep[at] += 1
-            step_truncated = self._timestep[at] >= self._limit[at]
+            step_truncated = env_truncated | (self._timestep[at] >= self._limit[at])
             rewards[k, at], next_obs[k, at] = step_rewards, observations
             terminated[k, at], truncated[k, at] = step_terminated, step_truncated
             self._return[at] += step_rewards
             self._obs[at] = observations
             for j in np.flatnonzero(step_terminated | step_truncated).tolist():
                 i = int(active[j])
+                # Ended by a staggering cut, not by the env itself nor by the time limit.
                 cut_short = (bool(step_truncated[j]) and not bool(step_terminated[j])
-                             and self._limit[i] < self._time_limit)
+                             and not bool(env_truncated[j]) and self._limit[i] < self._time_limit)
                 if not cut_short:  # a staggering cut is no complete episode
                     ended[i].append((float(self._return[i]), int(self._timestep[i])))
                 self._limit[i] = self._time_limit
@@ -231,8 +235,13 @@ class RolloutWorker:
             "positions": self._stepper.get_positions(),
         }
 
-    def set_state(self, state: dict[str, Any]) -> None:
-        """Restore a state from get_state of a worker with the same env id and env count."""
+    def set_state(self, state: dict[str, Any], restart_episodes: bool = False) -> None:
+        """Restore a state from get_state of a worker with the same env id and env count.
+
+        restart_episodes: then reset every env after restoring what was captured (the noise
+        generator, the envs' reset generators): the episodes under way are dropped and new ones
+        begin, for envs whose state could not be captured whole (envs.get_env_state).
+        """
         if len(state["envs"]) != len(self.envs):
             raise ValueError(f"state holds {len(state['envs'])} envs, worker has {len(self.envs)}")
         for env, env_state in zip(self.envs, state["envs"], strict=True):
@@ -248,6 +257,11 @@ class RolloutWorker:
         # left one substep stale; the saved positions keep the next reward bit-exact. (BatchStep
         # also reloads its batch rows from the restored envs here.)
         self._stepper.set_positions(state.get("positions"))
+        if restart_episodes:
+            for index in range(len(self.envs)):
+                self._obs[index] = self._stepper.reset(index)
+            self._timestep[:], self._return[:] = 0, 0.0
+            self._limit[:] = self._time_limit
 
     def close(self) -> None:
         """Close all training and evaluation envs."""

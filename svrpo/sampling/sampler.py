@@ -18,8 +18,8 @@ from typing import Any, NoReturn
 import numpy as np
 import torch
 
-from svrpo.sampling.batch_step import StepperName
-from svrpo.sampling.envs import env_info
+from svrpo.sampling.batch_step import StepperKind, StepperName, choose_stepper
+from svrpo.sampling.envs import env_info, make_env
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.rollout_worker import (
     THREAD_ENV_VARS,
@@ -78,6 +78,14 @@ class WorkerDiedError(RuntimeError):
     """
 
 
+def uncaptured_state(state: dict[str, Any]) -> list[str]:
+    """The env attributes a Sampler state could not capture (envs.get_env_state), each named
+    once as "Class.attribute (type)"; empty when a resume from it is exact."""
+    names = [name for worker in state.get("workers", []) for env in worker.get("envs", [])
+             for name in env.get("uncaptured", [])]
+    return list(dict.fromkeys(names))
+
+
 def steps_per_env(num_steps: int, num_envs: int) -> list[int]:
     """Split num_steps over num_envs: num_steps // num_envs each, one more for the first ones."""
     base, extra = divmod(num_steps, num_envs)
@@ -92,8 +100,9 @@ class Sampler:
     calls, so episodes continue from one batch into the next. With stagger=True the W * E envs'
     first episodes are cut at lengths spread over the horizon (rollout_worker.first_episode_cuts),
     so that batches cover the whole episode time axis.
-    `stepper` is the workers' physics stepper (rollout_worker.RolloutWorker); every choice gives
-    the same results, "vector" and "batch" exist for benchmarks and tests.
+    `stepper` is how the workers step their envs (batch_step.choose_stepper, decided once here
+    and recorded in `self.stepper`); the batched ones give the same results as "gym" where
+    they apply, forcing one exists for benchmarks and tests.
     """
 
     def __init__(
@@ -112,6 +121,12 @@ class Sampler:
                 f"{envs_per_worker}"
             )
         self.info = env_info(env_id, max_episode_steps)  # EnvError here, before any process
+        probe = make_env(env_id, max_episode_steps)
+        try:
+            self.stepper: StepperKind = choose_stepper(env_id, probe, stepper)
+        finally:
+            probe.close()
+        stepper = self.stepper  # every worker steps the same way
         self.num_workers = num_workers
         self.envs_per_worker = envs_per_worker
         cuts = first_episode_cuts(self.info.max_episode_steps, self.num_envs) if stagger else None
@@ -187,8 +202,9 @@ class Sampler:
         layout = {"num_workers": self.num_workers, "envs_per_worker": self.envs_per_worker}
         return {**layout, "workers": workers}
 
-    def set_state(self, state: dict[str, Any]) -> None:
-        """Restore get_state output of a Sampler with the same env and (W, E) layout."""
+    def set_state(self, state: dict[str, Any], restart_episodes: bool = False) -> None:
+        """Restore get_state output of a Sampler with the same env and (W, E) layout;
+        restart_episodes: then begin new episodes in every env (RolloutWorker.set_state)."""
         # In-process sampling (W = 0) runs exactly the code of one worker, so W = 0 and W = 1
         # states are interchangeable.
         saved = (max(state["num_workers"], 1), state["envs_per_worker"])
@@ -198,7 +214,7 @@ class Sampler:
                 f"{(state['num_workers'], state['envs_per_worker'])}, this Sampler has "
                 f"{(self.num_workers, self.envs_per_worker)}"
             )
-        self._call_all("set_state", [(worker,) for worker in state["workers"]])
+        self._call_all("set_state", [(worker, restart_episodes) for worker in state["workers"]])
 
     def close(self) -> None:
         """Stop the workers (terminating any that do not exit in time) and close the envs."""

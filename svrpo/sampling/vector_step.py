@@ -7,7 +7,8 @@ frame_skip)`, `mj_rnePostConstraint` where the task reads contact forces) and co
 observation, reward and termination of all E envs at once, with the same floating-point
 operations in the same order, so results are bit-identical to Gymnasium's (tested against it
 in tests/test_vector_step.py). Resets still go through the Gymnasium env (its reset noise
-generator), and tasks not listed in TASKS fall back to calling the unwrapped env's step.
+generator). Only the registered default tasks of TASKS are stepped here (batch_step.choose_stepper);
+every other env steps through Gymnasium itself (gym_step.GymStep).
 
 This module must not import torch: rollout workers import it.
 """
@@ -147,7 +148,8 @@ class VectorStep:
     """Steps Gymnasium envs (made by envs.make_env) in lockstep; obs, rewards, terminations batched.
 
     Time limits are the caller's: the wrappers (TimeLimit, OrderEnforcing, the passive checker)
-    are bypassed, so `step` never truncates. Call `reset(i)` after env i ends.
+    are bypassed, so `step` never truncates. Call `reset(i)` after env i ends. ValueError for a
+    task without batched logic (step those with gym_step.GymStep).
     """
 
     def __init__(self, env_id: str, envs: Sequence[gym.Env]) -> None:
@@ -155,11 +157,12 @@ class VectorStep:
         self._bases: list[Any] = [env.unwrapped for env in self.envs]
         logic = TASKS.get(env_id)
         # The batched logic reproduces the registered default task only; anything else (another
-        # task, a custom XML or kwargs via a registered variant) steps through Gymnasium.
-        self.logic = logic if logic is not None and _is_default(env_id, self._bases[0]) else None
+        # task, a custom XML or kwargs via a registered variant, wrappers) steps through Gymnasium.
+        if logic is None or not is_registered_default(env_id, self.envs[0]):
+            raise ValueError(f"VectorStep has no batched logic for {env_id!r} as built "
+                             f"(tasks: {sorted(TASKS)}, unwrapped and with default kwargs)")
+        self.logic = logic
         self._positions = np.zeros((len(self.envs), 0))
-        if self.logic is None:
-            return
         self._datas = [base.data for base in self._bases]
         self._models = [base.model for base in self._bases]
         self._ctrl = [data.ctrl for data in self._datas]  # views into MjData: valid for its life
@@ -174,19 +177,18 @@ class VectorStep:
 
     @property
     def batched(self) -> bool:
-        """Whether this task uses the batched path (else Gymnasium's own step is called)."""
-        return self.logic is not None
+        """Always: this stepper exists only for tasks with batched logic."""
+        return True
 
     def reset(self, index: int, seed: int | None = None) -> np.ndarray:
         """Reset env index through Gymnasium (its reset noise); returns the first observation."""
         observation, _ = self.envs[index].reset(seed=seed)
-        if self.logic is not None:
-            self._positions[index] = self._read_position(index)
+        self._positions[index] = self._read_position(index)
         return np.asarray(observation, dtype=np.float64)
 
-    def get_positions(self) -> np.ndarray | None:
-        """(E, k) copy of the cached task positions (the next step's "before"); None if unbatched."""
-        return None if self.logic is None else self._positions.copy()
+    def get_positions(self) -> np.ndarray:
+        """(E, k) copy of the cached task positions (the next step's "before")."""
+        return self._positions.copy()
 
     def set_positions(self, positions: np.ndarray | None = None) -> None:
         """Restore cached positions after the envs' physics were restored from outside.
@@ -195,8 +197,6 @@ class VectorStep:
         position is a qpos entry and one substep off for Ant and Humanoid (body positions that
         a restore recomputes but a step leaves as of its last substep).
         """
-        if self.logic is None:
-            return
         if positions is None:
             self._positions = np.stack([self._read_position(i) for i in range(len(self.envs))])
             return
@@ -208,15 +208,12 @@ class VectorStep:
     def store_envs(self) -> None:
         """Nothing to do: the envs' MjData are the state (BatchStep keeps it in batch rows)."""
 
-    def step(self, indices: Sequence[int], controls: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def step(self, indices: Sequence[int], controls: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Apply controls[j] to env indices[j] -> (observations (n, obs_dim) float64, rewards (n,)
-        float64, terminated (n,) bool), as the unwrapped Gymnasium envs would return them."""
+        float64, terminated (n,) bool, truncated (n,) bool: never, the time limit is the
+        caller's), as the unwrapped Gymnasium envs would return them."""
         logic = self.logic
-        if logic is None:
-            results = [self._bases[i].step(c) for i, c in zip(indices, controls, strict=True)]
-            return (np.stack([np.asarray(r[0], dtype=np.float64) for r in results]),
-                    np.array([r[1] for r in results], dtype=np.float64),
-                    np.array([bool(r[2]) for r in results], dtype=bool))
         frame_skip, contact, state = self._frame_skip, logic.needs_contact_forces, self._state
         models, datas, ctrl = self._models, self._datas, self._ctrl
         for j, i in enumerate(indices):
@@ -237,16 +234,28 @@ class VectorStep:
         velocity = (after - self._positions[at]) / self._dt
         self._positions[at] = after
         observations, rewards, terminated = logic.outcome(self._bases[0], fields, velocity, controls)
-        return observations, rewards, np.asarray(terminated, dtype=bool)
+        return observations, rewards, np.asarray(terminated, dtype=bool), np.zeros(count, dtype=bool)
 
     def _read_position(self, index: int) -> np.ndarray:
-        assert self.logic is not None
         if self.logic.body_position is not None:
             return self.logic.body_position(self._bases[index], self._datas[index])
         return self._datas[index].qpos[: self.logic.qpos_position].copy()
 
 
-def _is_default(env_id: str, base: Any) -> bool:
-    """Whether env_id's registration passes no kwargs that change the task's Python logic."""
+_DEFAULT_WRAPPERS = (gym.wrappers.TimeLimit, gym.wrappers.OrderEnforcing, gym.wrappers.PassiveEnvChecker)
+"""The wrappers gym.make puts on a registered task: they pass observations, rewards and actions
+through unchanged (the time limit is the rollout worker's own)."""
+
+
+def is_registered_default(env_id: str, env: gym.Env) -> bool:
+    """Whether env (made by envs.make_env(env_id)) is env_id's registered task as Gymnasium ships
+    it: a class of gymnasium.envs.mujoco, a registration without kwargs or extra wrappers, and
+    only gym.make's own wrappers around it. Only then is the batched logic the same env."""
     spec = gym.spec(env_id)
-    return not spec.kwargs and type(base).__module__.startswith("gymnasium.envs.mujoco.")
+    layer: Any = env
+    while isinstance(layer, gym.Wrapper):
+        if type(layer) not in _DEFAULT_WRAPPERS:
+            return False
+        layer = layer.env
+    return (not spec.kwargs and not spec.additional_wrappers
+            and type(layer).__module__.startswith("gymnasium.envs.mujoco."))
