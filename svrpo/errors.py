@@ -25,4 +25,3 @@ class SpecError(ValueError):
 def one_line(error: BaseException) -> str:
     """str(error) with all whitespace runs (newlines included) collapsed: the CLI prints one line."""
     return " ".join(str(error).split())
-
