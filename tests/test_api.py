@@ -1,4 +1,5 @@
-"""The public Python API: README's snippet runs as written, and `import svrpo` stays torch-free."""
+"""The public Python API: docs/python-api.md's snippets run as written (README shows a part of
+them), and `import svrpo` stays torch-free."""
 
 from __future__ import annotations
 
@@ -16,8 +17,7 @@ import svrpo
 from tests.helpers import progress_rows, without_clock
 
 README = Path(__file__).resolve().parents[1] / "README.md"
-
-
+API_DOC = README.parent / "docs" / "python-api.md"
 ESTIMATOR_DOC = README.parent / "docs" / "estimators.md"
 
 
@@ -26,7 +26,7 @@ def _snippets(text: str) -> list[str]:
 
 
 def _api_snippets() -> list[str]:
-    return _snippets(README.read_text().split("## Python API", 1)[1].split("\n## ", 1)[0])
+    return _snippets(API_DOC.read_text())
 
 
 def _run_snippets(snippets: list[str], directory: Path, monkeypatch: pytest.MonkeyPatch,
@@ -49,10 +49,21 @@ def _run_snippets(snippets: list[str], directory: Path, monkeypatch: pytest.Monk
     return namespace
 
 
+def test_readme_python_lines_are_lines_of_the_tested_snippet() -> None:
+    """README's short Python example is a part of docs/python-api.md's, which the tests run: each
+    of its lines is a line there, in the same order."""
+    (readme_snippet,) = _snippets(README.read_text())
+    tested = "\n".join(_api_snippets()).splitlines()
+    lines = [line for line in readme_snippet.splitlines() if line.strip()]
+    positions = [tested.index(line) if line in tested else -1 for line in lines]
+    assert -1 not in positions, [line for line, at in zip(lines, positions, strict=True) if at == -1]
+    assert positions == sorted(positions)
+
+
 def test_readme_python_api_snippet_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     snippets = _api_snippets()
-    assert snippets, "README has no Python API snippet"
-    namespace = _run_snippets(snippets, tmp_path, monkeypatch, README)
+    assert snippets, "docs/python-api.md has no snippet"
+    namespace = _run_snippets(snippets, tmp_path, monkeypatch, API_DOC)
     action = namespace["action"]
     assert isinstance(action, np.ndarray) and action.shape == (3,) and np.all(np.abs(action) <= 1.0)
     run = tmp_path / "runs" / "hopper"

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-README = ROOT / "README.md"
+API_DOC = ROOT / "docs" / "python-api.md"
 ESTIMATOR_DOC = ROOT / "docs" / "estimators.md"
 
 
@@ -22,8 +22,8 @@ def _snippets(text: str) -> list[str]:
     return re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL)
 
 
-def _readme_api_snippets() -> list[str]:
-    return _snippets(README.read_text().split("## Python API", 1)[1].split("\n## ", 1)[0])
+def _api_doc_snippets() -> list[str]:
+    return _snippets(API_DOC.read_text())
 
 
 def _as_script(snippets: list[str], directory: Path) -> str:
@@ -54,8 +54,8 @@ def _rows(run_dir: Path) -> list[dict[str, str]]:
 
 @pytest.mark.parametrize("how", ["python train.py", "python - (heredoc)"])
 def test_readme_api_snippet_runs_as_a_plain_script(tmp_path: Path, how: str) -> None:
-    """The README's snippet, unchanged, with sampling workers (num_workers >= 1 by default)."""
-    script = _as_script(_readme_api_snippets(), tmp_path)
+    """docs/python-api.md's snippets, unchanged, with sampling workers (num_workers >= 1 by default)."""
+    script = _as_script(_api_doc_snippets(), tmp_path)
     assert "__main__" not in script  # the point: no guard
     if how == "python train.py":
         (tmp_path / "train.py").write_text(script)
