@@ -38,7 +38,7 @@ def __getattr__(name: str) -> Any:
 
         return measure_gradient_error
     if name in _ESTIMATOR_NAMES:
-        from svrpo.core import estimators
+        from svrpo.algorithm import estimators
 
         return getattr(estimators, name)
     raise AttributeError(f"module 'svrpo' has no attribute {name!r}")

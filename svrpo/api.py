@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 from svrpo.config import Config
 
 if TYPE_CHECKING:
-    from svrpo.core.estimators import GradientEstimator
+    from svrpo.algorithm.estimators import GradientEstimator
 
 
 def train(config: Config | str | os.PathLike[str], run_dir: str | os.PathLike[str], resume: bool = False,
@@ -41,7 +41,7 @@ def train(config: Config | str | os.PathLike[str], run_dir: str | os.PathLike[st
     importable module (each sampling worker imports it; one defined in the script you run is
     refused); the run's env_id becomes "module:function", so config.json still names the task.
     Its wrappers are honoured (docs/own-environment.md).
-    estimator: your gradient estimator (the svrpo.core.estimators.GradientEstimator protocol, see
+    estimator: your gradient estimator (the svrpo.algorithm.estimators.GradientEstimator protocol, see
     docs/estimators.md) in place of config.estimator's; pass one of the same class to resume
     (a resume without it, or with another class, is refused).
     restart_episodes: with resume=True, accept that every episode restarts when the env keeps
@@ -49,9 +49,9 @@ def train(config: Config | str | os.PathLike[str], run_dir: str | os.PathLike[st
     run.json records the preset and scale `config` was made from (make_preset, kept through
     replace), or "custom-<estimator>" for a Config built by hand, and a user's estimator class.
     """
+    from svrpo.algorithm.parts import check_estimator
+    from svrpo.algorithm.run import estimator_class_name
     from svrpo.config import config_origin
-    from svrpo.core.parts import check_estimator
-    from svrpo.core.run import estimator_class_name
     from svrpo.experiments.runner import raise_keyboard_interrupt
     from svrpo.rundir.training import RunRecord
     from svrpo.rundir.training import train as train_run

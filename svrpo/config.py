@@ -18,7 +18,7 @@ from typing import Any, Literal
 FreshEstimatorName = Literal["svrpg", "srvrpg", "stormpg", "fresh_sgd"]
 Estimator = Literal["full", "sgd", "svrg", "sarah", "storm", "page", FreshEstimatorName]
 FRESH_ESTIMATORS: tuple[str, ...] = typing.get_args(FreshEstimatorName)
-"""The estimators whose inner steps j >= 1 draw m fresh steps with w_j (svrpo/fresh/): an
+"""The estimators whose inner steps j >= 1 draw m fresh steps with w_j (svrpo/algorithm/fresh/): an
 iteration then samples N + (J - 1) m steps (Config.steps_per_iteration)."""
 Metric = Literal["fisher", "identity"]
 Surrogate = Literal["ratio", "loglik"]
@@ -54,7 +54,7 @@ class Config:
     (d_0 = g~, d_j = mean_I grad U_t(w_j) + (1 - a)(d_{j-1} - mean_I grad U_t(w_{j-1}))) or `page`
     (v_0 = g~; v_j = grad U(w_j) on all N rows with probability p, else the sarah step).
     The fresh-sample estimators draw new steps with w_j at every inner step j >= 1 and correct
-    with importance weights omega_t = pi_{w'}(a_t|s_t) / pi_{w_j}(a_t|s_t) (svrpo/fresh/):
+    with importance weights omega_t = pi_{w'}(a_t|s_t) / pi_{w_j}(a_t|s_t) (svrpo/algorithm/fresh/):
     `svrpg` (v_j = g~ + mean_B[grad l_t(w_j) - omega_t grad l_t(w~)], Papini et al. 2018),
     `srvrpg` (v_j = v_{j-1} + mean_B[grad l_t(w_j) - omega_t grad l_t(w_{j-1})], Xu et al. 2020),
     `stormpg` (v_j = a grad l(w_j) + (1 - a)[v_{j-1} + grad l(w_j) - omega grad l(w_{j-1})],
@@ -431,7 +431,7 @@ _ABLATIONS: dict[str, dict[str, Any]] = {
     "svrpo-storm": {"estimator": "storm"},
     "svrpo-page": {"estimator": "page"},
     "svrpo-budgeted": {"kl_anchor": "budgeted"},
-    # Fresh samples in the inner loop (svrpo/fresh/): svrpo-budgeted with a fresh-sample
+    # Fresh samples in the inner loop (svrpo/algorithm/fresh/): svrpo-budgeted with a fresh-sample
     # estimator, one field from it: B = m fresh steps per inner step, each step bounded by
     # kl_step around w_j and the iteration by max_kl from the sampling policy, on the fresh states.
     "svrpg": {"kl_anchor": "budgeted", "estimator": "svrpg"},

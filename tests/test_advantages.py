@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from svrpo.core.advantages import discounted_returns, generalized_advantages, standardize
+from svrpo.algorithm.advantages import discounted_returns, generalized_advantages, standardize
 
 
 def tensor(values: list[float]) -> torch.Tensor:

@@ -1,4 +1,4 @@
-"""svrpo.core.algorithm's non-finite guards: a batch with NaN rewards skips its update, and an
+"""svrpo.algorithm.algorithm's non-finite guards: a batch with NaN rewards skips its update, and an
 update that leaves the policy or baseline non-finite is undone; both keep the parameters and count."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 import torch
 
-from svrpo.core.estimators import BatchGradients, SvrgGradient
+from svrpo.algorithm.estimators import BatchGradients, SvrgGradient
 from svrpo.models.baselines import MlpValueFunction
 from svrpo.rundir import checkpoint
 from svrpo.rundir.training import train

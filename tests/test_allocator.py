@@ -17,7 +17,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="gl
 
 FAULTS_PER_FORWARD_PASS = textwrap.dedent("""
     import json, resource, sys, torch
-    from svrpo.tools.allocator import keep_freed_memory
+    from svrpo.algorithm.allocator import keep_freed_memory
     from svrpo.models.policy import GaussianMlpPolicy
     torch.set_num_threads(1)
     kept = keep_freed_memory() if sys.argv[1] == "keep" else False
@@ -51,11 +51,11 @@ def test_repeated_large_forward_passes_stop_page_faulting() -> None:
 TRAIN = textwrap.dedent("""
     import sys
     from pathlib import Path
-    import svrpo.core.algorithm
+    import svrpo.algorithm.algorithm
     from svrpo.rundir.training import train
     from svrpo.config import make_preset
     if sys.argv[2] == "default":
-        svrpo.core.algorithm.keep_freed_memory = lambda *args, **kwargs: False
+        svrpo.algorithm.algorithm.keep_freed_memory = lambda *args, **kwargs: False
     config = make_preset("svrpo", "InvertedPendulum-v5", "laptop").replace(
         batch_size=2000, minibatch_size=500, total_steps=6000, num_workers=0, envs_per_worker=2,
         eval_every=0)

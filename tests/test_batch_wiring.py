@@ -4,7 +4,7 @@ surrogate_batch(run, batch) -> (SurrogateBatch, value targets, V(s_t)) is the se
 sampler and the learner. Its mistakes are quiet: a batch cut treated as a termination, a
 bootstrap value read at t instead of t + 1 or from the next row across a boundary, targets built
 from standardised advantages, a baseline fitted in other coordinates than it predicts in - all
-of them still train, only worse. So the expectations here are NOT computed with svrpo.core.advantages:
+of them still train, only worse. So the expectations here are NOT computed with svrpo.algorithm.advantages:
 they are literals worked out by hand (in the comments) on a tiny batch laid out as the sampler
 lays it out (env by env, each env's rows contiguous in time), with a stub baseline
 V(o, t) = o + t whose value at the stored next observation differs from the next row's value and
@@ -27,9 +27,9 @@ import numpy as np
 import pytest
 import torch
 
+from svrpo.algorithm import algorithm
+from svrpo.algorithm.objectives import SurrogateBatch
 from svrpo.config import Config, make_preset
-from svrpo.core import algorithm
-from svrpo.core.objectives import SurrogateBatch
 from svrpo.models.normalization import RunningMeanStd
 from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.sampling.sampler import Batch

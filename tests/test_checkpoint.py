@@ -13,8 +13,8 @@ import pytest
 import torch
 
 from svrpo import cli
+from svrpo.algorithm.algorithm import build_run
 from svrpo.config import make_preset
-from svrpo.core.algorithm import build_run
 from svrpo.rundir import checkpoint
 from svrpo.rundir.checkpoint import CheckpointError
 from svrpo.rundir.logging import RunLogger, read_progress, truncate_progress

@@ -69,7 +69,7 @@ VARIANTS = [name for name in PRESET_NAMES if name.startswith("svrpo-")]
 @pytest.mark.parametrize("ablation", VARIANTS)
 def test_ablations_differ_from_svrpo_by_exactly_one_field(ablation: str, env_id: str, scale: str) -> None:
     """Each svrpo-* preset swaps one part (a registered value of a part field) or the surrogate."""
-    from svrpo.core.parts import PART_REGISTRIES
+    from svrpo.algorithm.parts import PART_REGISTRIES
 
     base = make_preset("svrpo", env_id, scale)  # type: ignore[arg-type]
     variant = make_preset(ablation, env_id, scale)  # type: ignore[arg-type]

@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from svrpo.trust_region.conjugate_gradient import CgResult, conjugate_gradient
+from svrpo.algorithm.trust_region.conjugate_gradient import CgResult, conjugate_gradient
 
 
 def random_spd(size: int, seed: int) -> torch.Tensor:

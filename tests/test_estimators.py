@@ -10,8 +10,7 @@ import typing
 import pytest
 import torch
 
-from svrpo.config import Surrogate, make_preset
-from svrpo.core.estimators import (
+from svrpo.algorithm.estimators import (
     BatchGradients,
     FullGradient,
     GradientEstimator,
@@ -26,9 +25,10 @@ from svrpo.core.estimators import (
     storm_gradient,
     svrg_gradient,
 )
-from svrpo.core.gradients import SubsetGradient, subset_gradient
-from svrpo.core.objectives import SurrogateBatch, old_log_prob, per_sample_surrogate, surrogate
-from svrpo.core.parts import estimator_for
+from svrpo.algorithm.gradients import SubsetGradient, subset_gradient
+from svrpo.algorithm.objectives import SurrogateBatch, old_log_prob, per_sample_surrogate, surrogate
+from svrpo.algorithm.parts import estimator_for
+from svrpo.config import Surrogate, make_preset
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
 
@@ -376,8 +376,8 @@ def test_each_estimator_reads_what_its_formula_names() -> None:
 
 def test_config_names_build_the_matching_estimator() -> None:
     """Every value config.estimator accepts has a registered factory, and every factory a value."""
+    from svrpo.algorithm.estimators import ESTIMATORS
     from svrpo.config import Estimator
-    from svrpo.core.estimators import ESTIMATORS
 
     assert set(typing.get_args(Estimator)) == set(ESTIMATORS)
     config = make_preset("svrpo", "Hopper-v5", "laptop")

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import torch
 
+from svrpo.algorithm.trust_region.metrics import autograd_fisher_vector_product, fisher_vector_product
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.sampling.rollout_worker import RolloutWorker
-from svrpo.trust_region.metrics import autograd_fisher_vector_product, fisher_vector_product
 
 
 def _policy(hidden: tuple[int, ...], dtype: torch.dtype, seed: int = 0) -> GaussianMlpPolicy:

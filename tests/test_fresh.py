@@ -1,4 +1,4 @@
-"""Fresh samples in the inner loop (svrpo/fresh/): the estimators against a closed form, and
+"""Fresh samples in the inner loop (svrpo/algorithm/fresh/): the estimators against a closed form, and
 the loop's wiring into a run (fresh steps drawn with w_j, counted, fitted, resumed).
 
 The closed form: a one-step linear-Gaussian bandit. s ~ N(0, 1), a ~ N(theta s, sigma^2),
@@ -22,17 +22,17 @@ import torch
 from torch import nn
 
 import svrpo
+from svrpo.algorithm.algorithm import build_run, run_iteration
+from svrpo.algorithm.estimators import ESTIMATORS
+from svrpo.algorithm.fresh.base import FreshEstimator, FreshGradientEstimator
+from svrpo.algorithm.fresh.gradients import FreshGradients, importance_weights
+from svrpo.algorithm.fresh.sgd import FreshMinibatchGradient
+from svrpo.algorithm.fresh.srvrpg import SrvrpgGradient, srvrpg_gradient
+from svrpo.algorithm.fresh.stormpg import StormPgGradient, stormpg_gradient
+from svrpo.algorithm.fresh.svrpg import SvrpgGradient, svrpg_gradient
+from svrpo.algorithm.objectives import SurrogateBatch
+from svrpo.algorithm.streams import RandomStreams
 from svrpo.config import FRESH_ESTIMATORS, FRESH_PRESET_BASE, Estimator, differing_fields, make_preset
-from svrpo.core.algorithm import build_run, run_iteration
-from svrpo.core.estimators import ESTIMATORS
-from svrpo.core.objectives import SurrogateBatch
-from svrpo.core.streams import RandomStreams
-from svrpo.fresh.base import FreshEstimator, FreshGradientEstimator
-from svrpo.fresh.gradients import FreshGradients, importance_weights
-from svrpo.fresh.sgd import FreshMinibatchGradient
-from svrpo.fresh.srvrpg import SrvrpgGradient, srvrpg_gradient
-from svrpo.fresh.stormpg import StormPgGradient, stormpg_gradient
-from svrpo.fresh.svrpg import SvrpgGradient, svrpg_gradient
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from tests.helpers import progress_rows, without_clock
 
@@ -396,7 +396,7 @@ def test_every_accepted_fresh_step_is_inside_both_balls_on_its_fresh_states() ->
 def test_a_fresh_batch_keeps_the_behaviour_policy_the_sampling_policy_and_the_snapshot_scale() -> None:
     """fresh_surrogate_batch: old_log_prob is the live policy's (w_j), old_mean the sampling
     policy's (w~), advantages standardised with the snapshot batch's mean and std."""
-    from svrpo.core.algorithm import (
+    from svrpo.algorithm.algorithm import (
         _raw_advantages,
         advantage_scale,
         fresh_surrogate_batch,
@@ -455,11 +455,11 @@ def test_the_budget_is_also_held_on_the_snapshot_states() -> None:
     """A fresh step's trial within the budget on its fresh states but not on the N snapshot
     states is rejected (KL = inf, counted); with room on both it is judged as before. The
     iterate anchor has no budget and is not checked."""
-    from svrpo.core.objectives import old_log_prob
-    from svrpo.core.update import FullBatchEvaluator
-    from svrpo.fresh.loop import FreshBatchEvaluator
+    from svrpo.algorithm.fresh.loop import FreshBatchEvaluator
+    from svrpo.algorithm.objectives import old_log_prob
+    from svrpo.algorithm.trust_region.anchors import IterateAnchor, KlBound
+    from svrpo.algorithm.update import FullBatchEvaluator
     from svrpo.models.policy import GaussianMlpPolicy
-    from svrpo.trust_region.anchors import IterateAnchor, KlBound
 
     torch.manual_seed(0)
     policy = GaussianMlpPolicy(3, 2, (8,))

@@ -23,6 +23,11 @@ from pathlib import Path
 import pytest
 import torch
 
+from svrpo.algorithm.estimators import SvrgGradient, svrg_gradient
+from svrpo.algorithm.objectives import SurrogateBatch, surrogate
+from svrpo.algorithm.parts import update_parts
+from svrpo.algorithm.streams import RandomStreams
+from svrpo.algorithm.update import update_policy
 from svrpo.analysis.gradient_error import (
     gradient_noise_scale,
     reference_gradient,
@@ -30,11 +35,6 @@ from svrpo.analysis.gradient_error import (
     vector_error,
 )
 from svrpo.config import make_preset
-from svrpo.core.estimators import SvrgGradient, svrg_gradient
-from svrpo.core.objectives import SurrogateBatch, surrogate
-from svrpo.core.parts import update_parts
-from svrpo.core.streams import RandomStreams
-from svrpo.core.update import update_policy
 from svrpo.models.parameters import flat_gradient, flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
 
@@ -238,8 +238,8 @@ def test_batches_are_read_in_the_checkpoints_reward_scale() -> None:
     """With normalize_rewards, every batch the tool draws is scaled as training scales it
     (algorithm.sample), from the checkpoint's reward statistics each time: a large reference batch
     must not move the scale the ordinary batch is read in."""
+    from svrpo.algorithm.algorithm import build_run, sample
     from svrpo.analysis.gradient_error import sample_frozen
-    from svrpo.core.algorithm import build_run, sample
 
     config = make_preset("trpo", "InvertedPendulum-v5", "modern").replace(
         normalize_rewards=True, num_workers=0, envs_per_worker=2, batch_size=64, total_steps=64)

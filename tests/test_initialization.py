@@ -11,8 +11,8 @@ import pytest
 import torch
 from torch import nn
 
+from svrpo.algorithm.algorithm import build_run
 from svrpo.config import Config, ConfigError, make_preset
-from svrpo.core.algorithm import build_run
 from svrpo.models.baselines import MlpValueFunction
 from svrpo.models.policy import GaussianMlpPolicy
 

@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import torch
 
+from svrpo.algorithm.parts import update_parts
+from svrpo.algorithm.update import UpdateStats, update_policy
 from svrpo.config import make_preset
-from svrpo.core.parts import update_parts
-from svrpo.core.update import UpdateStats, update_policy
 from svrpo.models.parameters import flat_parameters
 from tests.test_update_reference import (
     ACT_DIM,

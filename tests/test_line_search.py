@@ -9,7 +9,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from svrpo.trust_region.line_search import LineSearchResult, backtracking_line_search
+from svrpo.algorithm.trust_region.line_search import LineSearchResult, backtracking_line_search
 
 
 class Scripted:

@@ -8,16 +8,16 @@ import pytest
 import torch
 from torch.func import functional_call, grad, hessian, jacrev, vmap
 
-from svrpo.core.objectives import mean_kl_from
-from svrpo.models.parameters import flat_parameters, set_flat_parameters
-from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
-from svrpo.trust_region.metrics import (
+from svrpo.algorithm.objectives import mean_kl_from
+from svrpo.algorithm.trust_region.metrics import (
     DirectionMetric,
     FisherMetric,
     IdentityMetric,
     fisher_vector_product,
     max_step_length,
 )
+from svrpo.models.parameters import flat_parameters, set_flat_parameters
+from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
 
 OBS_DIM, ACT_DIM, HIDDEN = 3, 2, (4,)
 

@@ -255,7 +255,7 @@ def test_api_runs_record_their_preset_and_plot_apart(tmp_path: Path) -> None:
 
 def test_user_estimator_must_be_passed_again_to_resume(tmp_path: Path) -> None:
     done = _script(tmp_path, """
-        from svrpo.core.estimators import SvrgGradient
+        from svrpo.algorithm.estimators import SvrgGradient
         class MyEstimator(SvrgGradient):
             pass
         config = svrpo.make_preset("svrpo", "InvertedPendulum-v5", "laptop").replace(
@@ -273,7 +273,7 @@ def test_user_estimator_must_be_passed_again_to_resume(tmp_path: Path) -> None:
     lines = done.stdout.splitlines()
     assert len(lines) == 2 and all(line.startswith("CheckpointError") for line in lines)
     assert "was trained with the estimator __main__.MyEstimator" in lines[0]
-    assert "not svrpo.core.estimators.SvrgGradient" in lines[1]
+    assert "not svrpo.algorithm.estimators.SvrgGradient" in lines[1]
     cli = _extend(tmp_path / "runs" / "mine", 1000)
     assert cli.returncode == 2 and "__main__.MyEstimator" in cli.stderr
     assert len(_rows(tmp_path / "runs" / "mine")) == 1

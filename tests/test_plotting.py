@@ -253,8 +253,8 @@ def test_plot_refuses_an_unknown_metric_and_a_non_positive_window(
 
 
 def _path_dependent_presets() -> list[str]:
+    from svrpo.algorithm.parts import estimator_for
     from svrpo.config import PRESET_NAMES
-    from svrpo.core.parts import estimator_for
 
     return [p for p in PRESET_NAMES if estimator_for(make_preset(p, "Hopper-v5", "laptop")).path_dependent]
 

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 import torch
 
+from svrpo.algorithm.algorithm import sample
+from svrpo.algorithm.run import build_run
 from svrpo.config import make_preset
-from svrpo.core.algorithm import sample
-from svrpo.core.run import build_run
 from svrpo.models.normalization import RewardNormalizer
 
 

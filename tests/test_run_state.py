@@ -14,9 +14,9 @@ import pytest
 import torch
 
 import svrpo
+from svrpo.algorithm.parts import PART_REGISTRIES
+from svrpo.algorithm.streams import LEGACY_OFFSETS, RandomStreams, stream_seed
 from svrpo.config import PRESET_NAMES, Config, make_preset
-from svrpo.core.parts import PART_REGISTRIES
-from svrpo.core.streams import LEGACY_OFFSETS, RandomStreams, stream_seed
 from svrpo.rundir.run_files import RunDirectoryError
 from tests.helpers import progress_rows, without_clock
 
@@ -114,7 +114,7 @@ def test_a_state_written_before_the_stream_allocator_resumes(tmp_path: Path) -> 
     config = _tiny("svrpo")
     run = svrpo.train(config, tmp_path / "a", show_progress=False, callback=_stop_after(1))
     del run
-    from svrpo.core.run import build_run
+    from svrpo.algorithm.run import build_run
     from svrpo.rundir.checkpoint import load_latest
 
     state, path, _ = load_latest(tmp_path / "a" / "checkpoints")

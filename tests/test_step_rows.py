@@ -1,5 +1,5 @@
-"""The one inner loop (svrpo/core/update.py) and where its steps' rows come from
-(svrpo/core/step_rows.py): the source chosen with the estimator, the KL bound's balls and the
+"""The one inner loop (svrpo/algorithm/update.py) and where its steps' rows come from
+(svrpo/algorithm/step_rows.py): the source chosen with the estimator, the KL bound's balls and the
 rows they are measured on, the parts told whether their step was accepted, and a fresh-family
 estimator that is one class."""
 
@@ -14,17 +14,17 @@ import pytest
 import torch
 
 import svrpo
+from svrpo.algorithm.algorithm import build_run, run_iteration
+from svrpo.algorithm.estimators import ESTIMATORS, SvrgGradient
+from svrpo.algorithm.fresh.base import FreshEstimator
+from svrpo.algorithm.fresh.gradients import FreshGradients
+from svrpo.algorithm.fresh.svrpg import SvrpgGradient
+from svrpo.algorithm.gradients import BatchGradients
+from svrpo.algorithm.step_rows import FreshDraws, SnapshotMinibatches, step_rows_for
+from svrpo.algorithm.streams import RandomStreams
+from svrpo.algorithm.trust_region.anchors import BudgetedAnchor, IterateAnchor, SamplingAnchor
 from svrpo.config import FRESH_ESTIMATORS, make_preset
-from svrpo.core.algorithm import build_run, run_iteration
-from svrpo.core.estimators import ESTIMATORS, SvrgGradient
-from svrpo.core.gradients import BatchGradients
-from svrpo.core.step_rows import FreshDraws, SnapshotMinibatches, step_rows_for
-from svrpo.core.streams import RandomStreams
-from svrpo.fresh.base import FreshEstimator
-from svrpo.fresh.gradients import FreshGradients
-from svrpo.fresh.svrpg import SvrpgGradient
 from svrpo.models.parameters import flat_parameters
-from svrpo.trust_region.anchors import BudgetedAnchor, IterateAnchor, SamplingAnchor
 from tests.test_fresh import ITERATE, SNAPSHOT, LinearGaussian, _estimator, _Snapshot, _tiny, fresh_batch
 from tests.test_update_reference import entry_policy, sampled_rows, surrogate_batch
 
@@ -34,7 +34,7 @@ PACKAGE = Path(svrpo.__file__).parent
 def test_the_inner_steps_are_written_once_in_the_package() -> None:
     loops = [(path.relative_to(PACKAGE).as_posix(), line) for path in sorted(PACKAGE.rglob("*.py"))
              for line in path.read_text().splitlines() if re.search(r"for step in range\(", line)]
-    assert loops == [("core/update.py", "    for step in range(loop.inner_steps):")]
+    assert loops == [("algorithm/update.py", "    for step in range(loop.inner_steps):")]
 
 
 def test_the_rows_source_follows_the_estimator() -> None:

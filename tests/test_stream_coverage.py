@@ -1,5 +1,5 @@
 """Every random stream a run draws from is in the checkpoint, is drawn after the resume point, and
-resumes exactly; no part makes a generator of its own (the allocator is svrpo/core/streams.py).
+resumes exactly; no part makes a generator of its own (the allocator is svrpo/algorithm/streams.py).
 
 The streams are read from the checkpoint itself, so a new one is picked up with no edit here:
 the allocator's named torch generators (`streams`), and every NumPy generator state anywhere in
@@ -24,10 +24,10 @@ import pytest
 import torch
 
 import svrpo
+from svrpo.algorithm.estimators import PageGradient
+from svrpo.algorithm.parts import PART_REGISTRIES
+from svrpo.algorithm.streams import stream_seed
 from svrpo.config import PRESET_NAMES, Config, make_preset
-from svrpo.core.estimators import PageGradient
-from svrpo.core.parts import PART_REGISTRIES
-from svrpo.core.streams import stream_seed
 from svrpo.rundir import checkpoint
 from tests.helpers import nested_equal, progress_rows, without_clock
 
@@ -242,8 +242,8 @@ def test_page_resumes_its_coin_stream_with_both_steps_taken_before_and_after_the
 # --- no generator outside the allocator --------------------------------------------------------
 
 ALLOWED_GENERATORS: dict[str, str] = {
-    "core/streams.py": "the allocator itself",
-    "core/run.py": "torch.manual_seed(config.seed) before the policy's initialisation, the one "
+    "algorithm/streams.py": "the allocator itself",
+    "algorithm/run.py": "torch.manual_seed(config.seed) before the policy's initialisation, the one "
                    "draw from the global generator (checkpointed anyway, as torch_rng)",
     "sampling/rollout_worker.py": "each sampling worker's action noise: a NumPy generator seeded "
                                   "from (seed, worker index) in the torch-free worker, saved in the "
@@ -291,7 +291,8 @@ def test_no_generator_is_made_outside_the_allocator() -> None:
             continue
         found += [f"svrpo/{relative}:{line}: {call}" for line, call in calls]
     assert not found, ("random numbers outside the allocator: take a named stream from "
-                       "svrpo.core.streams.RandomStreams (the checkpoint then holds it): " + "; ".join(found))
+                       "svrpo.algorithm.streams.RandomStreams (the checkpoint then holds it): "
+                       + "; ".join(found))
     stale = sorted(set(ALLOWED_GENERATORS) - allowed_used)
     assert not stale, f"ALLOWED_GENERATORS names files that make no generator (any more): {stale}"
 

@@ -7,11 +7,11 @@ from pathlib import Path
 import pytest
 import torch
 
+from svrpo.algorithm.algorithm import build_run, surrogate_batch
+from svrpo.algorithm.objectives import mean_kl_from
+from svrpo.algorithm.parts import update_parts
+from svrpo.algorithm.update import update_policy
 from svrpo.config import make_preset
-from svrpo.core.algorithm import build_run, surrogate_batch
-from svrpo.core.objectives import mean_kl_from
-from svrpo.core.parts import update_parts
-from svrpo.core.update import update_policy
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.rundir.training import train
 from tests.helpers import progress_rows, without_clock

@@ -24,7 +24,7 @@ import pytest
 import torch
 
 from svrpo import cli
-from svrpo.core.estimators import BatchGradients, SvrgGradient
+from svrpo.algorithm.estimators import BatchGradients, SvrgGradient
 from svrpo.rundir import checkpoint
 from svrpo.rundir.training import train
 from tests.helpers import (

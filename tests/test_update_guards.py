@@ -1,4 +1,4 @@
-"""svrpo.core.update.update_policy's inner-step guards: non-positive or non-finite curvature and a
+"""svrpo.algorithm.update.update_policy's inner-step guards: non-positive or non-finite curvature and a
 non-finite gradient skip the step, are counted, and leave the parameters bit for bit unchanged."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import math
 import pytest
 import torch
 
-from svrpo.core import algorithm, update
-from svrpo.core.algorithm import build_run
-from svrpo.core.estimators import SvrgGradient
+from svrpo.algorithm import algorithm, update
+from svrpo.algorithm.algorithm import build_run
+from svrpo.algorithm.estimators import SvrgGradient
 from svrpo.models.parameters import flat_parameters
 from tests.helpers import ENV, _numerics_config
 

@@ -30,15 +30,15 @@ from typing import Any
 import pytest
 import torch
 
+from svrpo.algorithm.objectives import SurrogateBatch
+from svrpo.algorithm.parts import update_parts
+from svrpo.algorithm.streams import stream_seed
+from svrpo.algorithm.trust_region.line_search import backtracking_line_search
+from svrpo.algorithm.trust_region.metrics import fisher_vector_product
+from svrpo.algorithm.update import UpdateStats, update_policy
 from svrpo.config import Config, differing_fields, make_preset
-from svrpo.core.objectives import SurrogateBatch
-from svrpo.core.parts import update_parts
-from svrpo.core.streams import stream_seed
-from svrpo.core.update import UpdateStats, update_policy
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
-from svrpo.trust_region.line_search import backtracking_line_search
-from svrpo.trust_region.metrics import fisher_vector_product
 
 DTYPE = torch.float64
 OBS_DIM, ACT_DIM, HIDDEN = 3, 2, (5,)
@@ -546,8 +546,8 @@ def test_scenarios_cover_every_option_and_event() -> None:
     """Each registered part of each kind, each surrogate, and each event the mistakes hinge on, is
     in some case: a part registered without a reference scenario fails here. (The fresh-sample
     estimators run another loop, checked against closed forms in tests/test_fresh.py.)"""
+    from svrpo.algorithm.parts import PART_REGISTRIES
     from svrpo.config import FRESH_ESTIMATORS, Surrogate
-    from svrpo.core.parts import PART_REGISTRIES
 
     options = {field: set(registry) for field, registry in PART_REGISTRIES.items()}
     options["estimator"] -= set(FRESH_ESTIMATORS)

@@ -12,7 +12,7 @@ update_vs_sb3_per_dimension.json, at most 3.1e-6). Run it with
 a Python that has sb3-contrib (kept out of the project's environment, as for vs_sb3.py) and this
 repository on PYTHONPATH. sb3-contrib's TRPO trains with its defaults as vs_sb3.py runs it (one
 environment, VecNormalize on observations). Just before each of its policy updates, our `trpo`
-update (make_preset("trpo", env, "modern"): svrpo.core.update.update_policy with the preset's
+update (make_preset("trpo", env, "modern"): svrpo.algorithm.update.update_policy with the preset's
 parts) runs on a copy of its policy, with its batch: the stored (normalised) observations, the
 unclipped actions and their log-probabilities at collection, and its advantages standardised as
 it standardises them ((A - mean) / (unbiased std + 1e-8)). Then sb3-contrib's own update runs
@@ -38,10 +38,10 @@ import numpy as np
 import torch
 from torch import nn
 
+from svrpo.algorithm.objectives import SurrogateBatch
+from svrpo.algorithm.parts import update_parts
+from svrpo.algorithm.update import update_policy
 from svrpo.config import make_preset
-from svrpo.core.objectives import SurrogateBatch
-from svrpo.core.parts import update_parts
-from svrpo.core.update import update_policy
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
 

@@ -1,8 +1,8 @@
 """Why the paper-scale update grew faster than N from N = 50,000 to 200,000: a profile, and
-the fix (svrpo.tools.allocator) measured against glibc's default allocation thresholds.
+the fix (svrpo.algorithm.allocator) measured against glibc's default allocation thresholds.
 
 Each measurement runs in a fresh process, once with glibc's defaults ("default") and once with
-svrpo.tools.allocator.keep_freed_memory ("keep", what training does), alternately:
+svrpo.algorithm.allocator.keep_freed_memory ("keep", what training does), alternately:
 
 1. The update split into its parts (svrpo.tools.bench.update_breakdown) at N = 50,000 and 200,000
    (Hopper-v5, paper preset, m = N/10, J = 50, one torch thread), with the number of calls of
@@ -39,12 +39,12 @@ MODES = ("default", "keep")
 
 def _set_mode(mode: str) -> None:
     """"default": training's keep_freed_memory call does nothing (glibc's own thresholds)."""
-    import svrpo.core.algorithm
+    import svrpo.algorithm.algorithm
 
     if mode == "default":
-        svrpo.core.algorithm.keep_freed_memory = lambda *args, **kwargs: False  # type: ignore[assignment]
+        svrpo.algorithm.algorithm.keep_freed_memory = lambda *args, **kwargs: False  # type: ignore[assignment]
     else:
-        svrpo.core.algorithm.keep_freed_memory()
+        svrpo.algorithm.algorithm.keep_freed_memory()
 
 
 def one_update(batch_size: int) -> dict[str, Any]:
@@ -64,8 +64,8 @@ def kernel_costs(repeats: int) -> dict[str, Any]:
     gradient vs n."""
     import resource
 
-    from svrpo.core.objectives import SurrogateBatch
-    from svrpo.core.update import FullBatchEvaluator
+    from svrpo.algorithm.objectives import SurrogateBatch
+    from svrpo.algorithm.update import FullBatchEvaluator
     from svrpo.models.policy import GaussianMlpPolicy
 
     torch.set_num_threads(1)

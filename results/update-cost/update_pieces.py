@@ -28,11 +28,11 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from a checkout, uninstalled
 
-from svrpo.core.objectives import SurrogateBatch, mean_kl_from, old_log_prob, surrogate  # noqa: E402
-from svrpo.core.update import FullBatchEvaluator  # noqa: E402
+from svrpo.algorithm.objectives import SurrogateBatch, mean_kl_from, old_log_prob, surrogate  # noqa: E402
+from svrpo.algorithm.trust_region.metrics import autograd_fisher_vector_product, fisher_vector_product  # noqa: E402
+from svrpo.algorithm.update import FullBatchEvaluator  # noqa: E402
 from svrpo.models.policy import GaussianMlpPolicy  # noqa: E402
 from svrpo.tools.bench import machine_info  # noqa: E402
-from svrpo.trust_region.metrics import autograd_fisher_vector_product, fisher_vector_product  # noqa: E402
 
 
 def _seconds(function: Callable[[], Any], inner: int) -> float:

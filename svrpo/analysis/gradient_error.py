@@ -5,7 +5,7 @@ At a policy w~ (a checkpoint), the tool draws a large reference batch of M steps
 batch of N steps with pi_{w~}, both prepared as training prepares a batch (GAE with the run's
 baseline, advantages standardised over the batch, the run's observation normaliser). It then
 replays one outer iteration of an estimator's inner loop on the ordinary batch with the library's
-own loop (svrpo.core.update.update_policy, observed through UpdateParts.observe_step) and, at
+own loop (svrpo.algorithm.update.update_policy, observed through UpdateParts.observe_step) and, at
 every inner step j, compares three vectors at the iterate w_j:
 
 * g_j    the step's gradient estimate (what the estimator returned);
@@ -47,18 +47,18 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
+from svrpo.algorithm.objectives import SurrogateBatch, surrogate
+from svrpo.algorithm.parts import UpdateParts
+from svrpo.algorithm.step_rows import DrawWithIterate
+from svrpo.algorithm.trust_region.metrics import MatVec
+from svrpo.algorithm.update import update_policy
 from svrpo.config import Config, ConfigError, Surrogate
-from svrpo.core.objectives import SurrogateBatch, surrogate
-from svrpo.core.parts import UpdateParts
-from svrpo.core.step_rows import DrawWithIterate
-from svrpo.core.update import update_policy
 from svrpo.errors import CheckpointError
 from svrpo.models.parameters import flat_gradient, flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
-from svrpo.trust_region.metrics import MatVec
 
 if TYPE_CHECKING:
-    from svrpo.core.run import Run
+    from svrpo.algorithm.run import Run
     from svrpo.sampling.sampler import Batch
 
 __all__ = ["ErrorSplit", "GradientErrorReport", "NoiseScale", "ReferenceGradient", "StepErrors",
@@ -214,7 +214,7 @@ def replay_errors(
     """Run one outer iteration of `parts`' inner loop on `batch` (in place on `policy`, which is w~
     on entry) with the library's loop, and return each step's errors.
 
-    A fresh-sample estimator (svrpo/fresh/) needs `draw_fresh` (update_policy's `draw`).
+    A fresh-sample estimator (svrpo/algorithm/fresh/) needs `draw_fresh` (update_policy's `draw`).
     `generator` draws the mini-batches and Fisher subsets.
     """
     kind = parts.loop.surrogate
@@ -283,7 +283,7 @@ def replay_configs(saved: Config, estimators: Sequence[str], update_from: Sequen
     estimator's confirmed run, labelled by its experiment (run.json) or directory name; its
     network and baseline must be the checkpoint's. `overrides` and `seed` apply to every replay.
     """
-    from svrpo.core.run import MUST_MATCH
+    from svrpo.algorithm.run import MUST_MATCH
 
     changes = {**dict(overrides), "seed": seed}
     configs: dict[str, Config] = {}
@@ -315,7 +315,7 @@ def sample_frozen(run: Run, num_steps: int) -> Batch:
     """num_steps steps with the current policy, rewards scaled as in training (algorithm.sample:
     normalize_rewards), but from the checkpoint's reward statistics every time: the measurement
     must not let a large reference batch move the scale the ordinary batch is read in."""
-    from svrpo.core.algorithm import sample
+    from svrpo.algorithm.algorithm import sample
 
     saved = copy.deepcopy(run.reward_normalizer)
     batch = sample(run, num_steps)
@@ -350,14 +350,14 @@ def measure_gradient_error(
     """
     import time
 
-    from svrpo.core.algorithm import (
+    from svrpo.algorithm.algorithm import (
         advantage_scale,
         build_run,
         fresh_surrogate_batch,
         surrogate_batch,
     )
-    from svrpo.core.parts import update_parts
-    from svrpo.core.streams import RandomStreams
+    from svrpo.algorithm.parts import update_parts
+    from svrpo.algorithm.streams import RandomStreams
 
     if reference_parts < 2 or reference_steps < 2 * reference_parts:
         raise ConfigError(f"reference_parts must be >= 2 and reference_steps >= 2 * parts; got "

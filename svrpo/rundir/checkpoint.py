@@ -1,6 +1,6 @@
 """Checkpoint files: atomic writes, a format stamp, loads that never unpickle code, names,
 fallback to an older file, pruning. What a checkpoint holds is the run's business
-(svrpo.core.run.Run.state_dict / load_state_dict); this module only stores such dicts.
+(svrpo.algorithm.run.Run.state_dict / load_state_dict); this module only stores such dicts.
 
 A checkpoint is a dict of tensors and plain Python values written with torch.save to a
 temporary file, fsynced, then renamed over the target: a crash leaves either the old or the

@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from svrpo.algorithm.algorithm import run_iteration
+from svrpo.algorithm.estimators import GradientEstimator
+from svrpo.algorithm.run import Run, build_run
 from svrpo.config import Config
-from svrpo.core.algorithm import run_iteration
-from svrpo.core.estimators import GradientEstimator
-from svrpo.core.run import Run, build_run
 from svrpo.errors import TrainingError
 from svrpo.rundir import checkpoint
 from svrpo.rundir.atomic import write_text_atomic

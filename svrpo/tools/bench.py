@@ -32,10 +32,10 @@ import mujoco.rollout
 import numpy as np
 import torch
 
+from svrpo.algorithm.estimators import BatchGradients, VarianceDiagnostic
+from svrpo.algorithm.lifecycle import Part
+from svrpo.algorithm.parts import UpdateParts
 from svrpo.arguments import OneLineParser
-from svrpo.core.estimators import BatchGradients, VarianceDiagnostic
-from svrpo.core.lifecycle import Part
-from svrpo.core.parts import UpdateParts
 from svrpo.errors import EnvError
 from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.sampling.envs import env_info, is_mujoco_task, make_env, scale_action
@@ -330,10 +330,10 @@ def update_breakdown(
     first, so the measured update is not the very first one. Also times the baseline fits
     (the preset's and an MLP value function with the config's defaults).
     """
+    from svrpo.algorithm.algorithm import build_run, run_iteration, snapshot_of, surrogate_batch
+    from svrpo.algorithm.parts import update_parts
+    from svrpo.algorithm.update import update_policy
     from svrpo.config import make_preset
-    from svrpo.core.algorithm import build_run, run_iteration, snapshot_of, surrogate_batch
-    from svrpo.core.parts import update_parts
-    from svrpo.core.update import update_policy
     from svrpo.models.baselines import MlpValueFunction
 
     common = {"seed": seed, "eval_every": 0, **overrides}
@@ -410,8 +410,8 @@ def trained_snapshot(env_id: str, iterations: int, seed: int = 0) -> tuple[Polic
     "Trained" means only that: a policy that has moved away from the initial one (longer
     episodes, different states), not a converged one. Returns the snapshot and its record.
     """
+    from svrpo.algorithm.algorithm import build_run, run_iteration, snapshot_of
     from svrpo.config import make_preset
-    from svrpo.core.algorithm import build_run, run_iteration, snapshot_of
 
     config = make_preset("trpo", env_id, "laptop").replace(seed=seed, eval_every=0)
     run = build_run(config)

@@ -1,6 +1,6 @@
 """The parts of the policy update, built from a Config in one place (`update_parts`).
 
-The update (svrpo/core/update.py) receives an `UpdateParts`: objects with small typed interfaces and
+The update (svrpo/algorithm/update.py) receives an `UpdateParts`: objects with small typed interfaces and
 the inner loop's numbers, never the Config, so no part is picked by a string on the update path.
 Each part kind is one registry, name -> factory(config, streams), kept beside its classes:
 
@@ -12,7 +12,7 @@ Each part kind is one registry, name -> factory(config, streams), kept beside it
 | inner_stop | stopping.STOPPING_RULES |
 
 `PART_REGISTRIES` lists them; tests derive their coverage from it. Every part has the lifecycle
-of svrpo.core.lifecycle.Part (start at each outer iteration, state_dict / load_state_dict), which
+of svrpo.algorithm.lifecycle.Part (start at each outer iteration, state_dict / load_state_dict), which
 `UpdateParts.start` / `state_dict` / `load_state_dict` call on all four alike. Replacing a part
 is `dataclasses.replace(parts, estimator=MyEstimator())`: that is how a user's estimator enters a
 run (svrpo.train(..., estimator=...)) and how benchmarks time a part (wrap it) and tests fault
@@ -27,22 +27,22 @@ from typing import Any
 
 import torch
 
-from svrpo.config import Config, Surrogate
-from svrpo.core.estimators import (
+from svrpo.algorithm.estimators import (
     ESTIMATORS,
     BatchGradients,
     GradientEstimator,
     VarianceDiagnostic,
     estimator_variances,
 )
-from svrpo.core.objectives import SurrogateBatch
-from svrpo.core.stopping import STOPPING_RULES, StoppingRule
-from svrpo.core.streams import RandomStreams
-from svrpo.fresh.base import FreshGradientEstimator
+from svrpo.algorithm.fresh.base import FreshGradientEstimator
+from svrpo.algorithm.objectives import SurrogateBatch
+from svrpo.algorithm.stopping import STOPPING_RULES, StoppingRule
+from svrpo.algorithm.streams import RandomStreams
+from svrpo.algorithm.trust_region.anchors import KL_ANCHORS, KlAnchor
+from svrpo.algorithm.trust_region.line_search import LineSearchResult, backtracking_line_search
+from svrpo.algorithm.trust_region.metrics import METRICS, DirectionMetric, MatVec, fisher_vector_product
+from svrpo.config import Config, Surrogate
 from svrpo.models.policy import GaussianMlpPolicy
-from svrpo.trust_region.anchors import KL_ANCHORS, KlAnchor
-from svrpo.trust_region.line_search import LineSearchResult, backtracking_line_search
-from svrpo.trust_region.metrics import METRICS, DirectionMetric, MatVec, fisher_vector_product
 
 PART_REGISTRIES: dict[str, Mapping[str, Callable[[Config, RandomStreams], Any]]] = {
     "estimator": ESTIMATORS,
@@ -162,7 +162,7 @@ def check_estimator(estimator: object, config: Config | None = None) -> None:
     raise TypeError(f"estimator {type(estimator).__name__} lacks {', '.join(missing)}: a gradient "
                     "estimator needs uses_minibatches, path_dependent, start(gradients), "
                     "estimate(indices), peek(indices) and state_dict / load_state_dict (subclass "
-                    "svrpo.core.lifecycle.Part for empty ones; see docs/estimators.md)")
+                    "svrpo.algorithm.lifecycle.Part for empty ones; see docs/estimators.md)")
 
 
 def update_parts(config: Config, estimator: GradientEstimator | None = None,

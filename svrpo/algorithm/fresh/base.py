@@ -13,11 +13,11 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import torch
 
-from svrpo.core.lifecycle import Part
-from svrpo.fresh.gradients import FreshGradients
+from svrpo.algorithm.fresh.gradients import FreshGradients
+from svrpo.algorithm.lifecycle import Part
 
 if TYPE_CHECKING:
-    from svrpo.core.gradients import BatchGradients
+    from svrpo.algorithm.gradients import BatchGradients
 
 
 @runtime_checkable
@@ -33,8 +33,8 @@ class FreshGradientEstimator(Protocol):
 
 class FreshEstimator(Part):
     """Base of the fresh-sample estimators: subclass it and write `combine` (one file, plus one
-    line in svrpo.core.estimators.ESTIMATORS and the name in config.FreshEstimatorName). The
-    inner loop gives them the rows svrpo.core.step_rows.FreshDraws draws, as FreshGradients."""
+    line in svrpo.algorithm.estimators.ESTIMATORS and the name in config.FreshEstimatorName). The
+    inner loop gives them the rows svrpo.algorithm.step_rows.FreshDraws draws, as FreshGradients."""
 
     uses_minibatches = True
     """The fresh batches are of B = minibatch_size steps."""
@@ -80,6 +80,6 @@ class FreshEstimator(Part):
     def _fresh(self, rows: FreshGradients | torch.Tensor) -> FreshGradients:
         if not isinstance(rows, FreshGradients):
             raise TypeError(f"{type(self).__name__} draws fresh samples: it estimates from the "
-                            "FreshGradients of steps drawn with w_j (svrpo.core.step_rows.FreshDraws), "
+                            "FreshGradients of steps drawn with w_j (svrpo.algorithm.step_rows.FreshDraws), "
                             "not from row indices of the snapshot batch")
         return rows

@@ -9,16 +9,16 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import torch
 from torch import nn
 
+from svrpo.algorithm.lifecycle import Part
+from svrpo.algorithm.objectives import mean_kl_from
+from svrpo.algorithm.streams import RandomStreams
+from svrpo.algorithm.trust_region.conjugate_gradient import CgResult, conjugate_gradient
 from svrpo.config import Config
-from svrpo.core.lifecycle import Part
-from svrpo.core.objectives import mean_kl_from
-from svrpo.core.streams import RandomStreams
 from svrpo.models.parameters import flat_gradient
 from svrpo.models.policy import GaussianMlpPolicy
-from svrpo.trust_region.conjugate_gradient import CgResult, conjugate_gradient
 
 if TYPE_CHECKING:
-    from svrpo.core.gradients import BatchGradients
+    from svrpo.algorithm.gradients import BatchGradients
 
 MatVec = Callable[[torch.Tensor], torch.Tensor]
 Direction = tuple[torch.Tensor, CgResult | None]
@@ -124,7 +124,7 @@ def _linear_layers(policy: GaussianMlpPolicy) -> list[nn.Linear] | None:
 @runtime_checkable
 class DirectionMetric(Protocol):
     """Turns a gradient estimate into a search direction s (its length is set by the KL model);
-    a part with the svrpo.core.lifecycle.Part methods (start, state_dict, load_state_dict)."""
+    a part with the svrpo.algorithm.lifecycle.Part methods (start, state_dict, load_state_dict)."""
 
     def direction(self, gradient: torch.Tensor, fisher_product: MatVec) -> Direction:
         """(s, the CG result if a solve was run, else None)."""

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import torch
 
-from svrpo.fresh.base import FreshEstimator
-from svrpo.fresh.gradients import FreshGradients
+from svrpo.algorithm.fresh.base import FreshEstimator
+from svrpo.algorithm.fresh.gradients import FreshGradients
 
 
 def stormpg_gradient(previous_estimate: torch.Tensor, current: torch.Tensor,

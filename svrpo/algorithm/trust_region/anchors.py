@@ -1,7 +1,7 @@
 """Which policy anchors the KL trust region of each inner step, and how far a step may go
 from it (DESIGN.md decision 2).
 
-The anchor is a part (svrpo.core.lifecycle.Part): it owns the radius, so an anchor whose radius
+The anchor is a part (svrpo.algorithm.lifecycle.Part): it owns the radius, so an anchor whose radius
 changes within an iteration (e.g. shrinks with the KL already used) needs no edit in the
 update. `KL_ANCHORS` maps each config value of `kl_anchor` to the factory of its part.
 """
@@ -15,14 +15,14 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 import torch
 
+from svrpo.algorithm.lifecycle import Part
+from svrpo.algorithm.objectives import SurrogateBatch
 from svrpo.config import Config
-from svrpo.core.lifecycle import Part
-from svrpo.core.objectives import SurrogateBatch
 from svrpo.models.policy import GaussianMlpPolicy
 
 if TYPE_CHECKING:
-    from svrpo.core.gradients import BatchGradients
-    from svrpo.core.streams import RandomStreams
+    from svrpo.algorithm.gradients import BatchGradients
+    from svrpo.algorithm.streams import RandomStreams
 
 Gaussian = tuple[torch.Tensor, torch.Tensor]
 """(mean, log_std) per batch row, both (N, act_dim)."""
@@ -65,7 +65,7 @@ class KlBound:
 @runtime_checkable
 class KlAnchor(Protocol):
     """Gives the trust region of the step about to leave the policy's current w_j; a part with
-    the svrpo.core.lifecycle.Part methods (start, state_dict, load_state_dict)."""
+    the svrpo.algorithm.lifecycle.Part methods (start, state_dict, load_state_dict)."""
 
     def bound(self, batch: SurrogateBatch, policy: GaussianMlpPolicy) -> KlBound:
         """The anchor's (mean, log_std), both (N, act_dim), and the radius for this step."""

@@ -1,9 +1,9 @@
 """Where an inner step's rows come from: mini-batches of the snapshot batch, or fresh draws.
 
-The inner loop (svrpo/core/update.py) asks its source for each step's rows and the gradient
+The inner loop (svrpo/algorithm/update.py) asks its source for each step's rows and the gradient
 estimate on them; everything else of the step (the Fisher subset, the KL bound, the line
 search's surrogate) reads those rows. The source is chosen with the estimator
-(`step_rows_for`): an estimator of the fresh-sample family (svrpo/fresh/, the
+(`step_rows_for`): an estimator of the fresh-sample family (svrpo/algorithm/fresh/, the
 FreshGradientEstimator interface) gets `FreshDraws`, every other one `SnapshotMinibatches`.
 A source lives for one update (one outer iteration).
 
@@ -22,17 +22,17 @@ from typing import Protocol
 
 import torch
 
-from svrpo.core.estimators import GradientEstimator
-from svrpo.core.gradients import BatchGradients
-from svrpo.core.objectives import SurrogateBatch
-from svrpo.fresh.base import FreshGradientEstimator
-from svrpo.fresh.gradients import FreshGradients
+from svrpo.algorithm.estimators import GradientEstimator
+from svrpo.algorithm.fresh.base import FreshGradientEstimator
+from svrpo.algorithm.fresh.gradients import FreshGradients
+from svrpo.algorithm.gradients import BatchGradients
+from svrpo.algorithm.objectives import SurrogateBatch
 from svrpo.models.policy import GaussianMlpPolicy
 
 DrawWithIterate = Callable[[int], SurrogateBatch]
 """num_steps -> that many steps sampled with the policy's current parameters w_j, prepared as a
 SurrogateBatch whose old_log_prob is the behaviour policy's (w_j) and old_mean / old_log_std the
-sampling policy pi_{w~}'s (svrpo.core.algorithm.fresh_surrogate_batch)."""
+sampling policy pi_{w~}'s (svrpo.algorithm.algorithm.fresh_surrogate_batch)."""
 
 
 def draw_rows(count: int, size: int, generator: torch.Generator) -> torch.Tensor:
@@ -102,7 +102,7 @@ class FreshDraws:
                  draw: DrawWithIterate | None) -> None:
         if draw is None:
             raise ValueError(f"{type(estimator).__name__} draws fresh steps with the iterate: "
-                             "update_policy needs draw= (svrpo.core.algorithm passes it)")
+                             "update_policy needs draw= (svrpo.algorithm.algorithm passes it)")
         self.estimator, self.policy, self.batch, self.draw = estimator, policy, batch, draw
         self.snapshot_gradient = gradients.snapshot_full
         self.draw_size, self.clip = draw_size, importance_weight_clip

@@ -1,6 +1,6 @@
 """Gradient estimators of the surrogate U(w) = mean_t U_t(w) for the inner loop.
 
-Each estimator is a part: an object built once per run (svrpo/core/parts.py) and handed to the
+Each estimator is a part: an object built once per run (svrpo/algorithm/parts.py) and handed to the
 update, which calls `start` at the snapshot w~ of every outer iteration, then `estimate` once
 per inner step. All of them read the iteration's batch only, through `BatchGradients`:
 
@@ -14,8 +14,8 @@ per inner step. All of them read the iteration's batch only, through `BatchGradi
 * `PageGradient`       v_0 = g~; v_j = grad U(w_j) on all N rows with probability p, else the
                        SARAH step (PAGE, Li et al. 2021; PAGE-PG, Gargiani et al. 2022).
 
-The fresh-sample estimators (svrpo/fresh/: SVRPG, SRVR-PG, STORM-PG, fresh SGD) are registered
-here too; their inner steps j >= 1 read batches drawn with w_j (FreshDraws in svrpo/core/step_rows.py),
+The fresh-sample estimators (svrpo/algorithm/fresh/: SVRPG, SRVR-PG, STORM-PG, fresh SGD) are registered
+here too; their inner steps j >= 1 read batches drawn with w_j (FreshDraws in svrpo/algorithm/step_rows.py),
 not mini-batches of this batch.
 
 `ESTIMATORS` maps each config value of `estimator` to the factory that builds its part; a new
@@ -31,14 +31,14 @@ from typing import Any, Protocol, runtime_checkable
 
 import torch
 
+from svrpo.algorithm.fresh.sgd import FreshMinibatchGradient
+from svrpo.algorithm.fresh.srvrpg import SrvrpgGradient
+from svrpo.algorithm.fresh.stormpg import StormPgGradient
+from svrpo.algorithm.fresh.svrpg import SvrpgGradient
+from svrpo.algorithm.gradients import BatchGradients
+from svrpo.algorithm.lifecycle import Part
+from svrpo.algorithm.streams import RandomStreams
 from svrpo.config import Config
-from svrpo.core.gradients import BatchGradients
-from svrpo.core.lifecycle import Part
-from svrpo.core.streams import RandomStreams
-from svrpo.fresh.sgd import FreshMinibatchGradient
-from svrpo.fresh.srvrpg import SrvrpgGradient
-from svrpo.fresh.stormpg import StormPgGradient
-from svrpo.fresh.svrpg import SvrpgGradient
 
 
 @runtime_checkable
@@ -53,7 +53,7 @@ class GradientEstimator(Protocol):
     True means the estimate at step j depends on the earlier inner steps (a recursion), so the
     probe measures a conditional mean squared error, not a variance (reports draw it apart).
     `state_dict` / `load_state_dict` carry what must survive a checkpoint between iterations
-    (svrpo.core.lifecycle.Part gives the empty defaults: subclass it).
+    (svrpo.algorithm.lifecycle.Part gives the empty defaults: subclass it).
     """
 
     uses_minibatches: bool
@@ -256,7 +256,7 @@ ESTIMATORS: dict[str, Callable[[Config, RandomStreams], GradientEstimator]] = {
     "sarah": lambda config, streams: SarahGradient(),
     "storm": lambda config, streams: StormGradient(config.storm_momentum),
     "page": lambda config, streams: PageGradient(config.page_probability, streams.generator("page")),
-    # Fresh samples in the inner loop (svrpo/fresh/; their rows: svrpo.core.step_rows.FreshDraws).
+    # Fresh samples in the inner loop (svrpo/algorithm/fresh/; rows: step_rows.FreshDraws).
     "svrpg": lambda config, streams: SvrpgGradient(),
     "srvrpg": lambda config, streams: SrvrpgGradient(),
     "stormpg": lambda config, streams: StormPgGradient(config.storm_momentum),

@@ -1,10 +1,10 @@
 """Kept for one name that tests/test_fresh.py imports: the fresh-sample steps now run in the one
-inner loop (svrpo.core.update.update_policy, with svrpo.core.step_rows.FreshDraws), and their
+inner loop (svrpo.algorithm.update.update_policy, with svrpo.algorithm.step_rows.FreshDraws), and their
 evaluator is FullBatchEvaluator given the snapshot rows' evaluator."""
 
+from svrpo.algorithm.objectives import SurrogateBatch
+from svrpo.algorithm.update import FullBatchEvaluator
 from svrpo.config import Surrogate
-from svrpo.core.objectives import SurrogateBatch
-from svrpo.core.update import FullBatchEvaluator
 from svrpo.models.policy import GaussianMlpPolicy
 
 

@@ -1,10 +1,10 @@
 """One outer iteration's policy update: J inner trust-region steps (Algorithm 1, lines 5-12).
 
 The parts (estimator, direction metric, KL anchor, stopping rule) arrive built, in an
-`UpdateParts` (svrpo/core/parts.py); TRPO is the same function with the full-gradient estimator,
+`UpdateParts` (svrpo/algorithm/parts.py); TRPO is the same function with the full-gradient estimator,
 J = 1 and nu = 1. Where each step's rows come from (mini-batches of the snapshot batch, or steps
 drawn with the iterate w_j for the fresh-sample estimators) is the source chosen with the
-estimator (svrpo/core/step_rows.py); the steps themselves are the same. The function returns
+estimator (svrpo/algorithm/step_rows.py); the steps themselves are the same. The function returns
 its statistics; only the training loop logs them.
 
 With fresh draws: step 0 is the snapshot step (g~ on the N steps); at each step j >= 1 the B
@@ -25,16 +25,16 @@ from dataclasses import dataclass, field
 
 import torch
 
+from svrpo.algorithm.estimators import VarianceDiagnostic
+from svrpo.algorithm.objectives import SurrogateBatch, per_sample_surrogate
+from svrpo.algorithm.parts import UpdateParts
+from svrpo.algorithm.step_rows import DrawWithIterate, draw_rows, step_rows_for
+from svrpo.algorithm.trust_region.anchors import KlBound
+from svrpo.algorithm.trust_region.line_search import LineSearchResult
+from svrpo.algorithm.trust_region.metrics import MatVec, max_step_length
 from svrpo.config import Surrogate
-from svrpo.core.estimators import VarianceDiagnostic
-from svrpo.core.objectives import SurrogateBatch, per_sample_surrogate
-from svrpo.core.parts import UpdateParts
-from svrpo.core.step_rows import DrawWithIterate, draw_rows, step_rows_for
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
-from svrpo.trust_region.anchors import KlBound
-from svrpo.trust_region.line_search import LineSearchResult
-from svrpo.trust_region.metrics import MatVec, max_step_length
 
 
 @dataclass(frozen=True)
@@ -84,7 +84,7 @@ class UpdateStats:
     iteration's KL budget was spent."""
     fresh_steps: int = 0
     """Environment steps drawn inside the inner loop with the iterates w_j (fresh-sample
-    estimators, svrpo/fresh/); 0 when the loop reuses the snapshot batch."""
+    estimators, svrpo/algorithm/fresh/); 0 when the loop reuses the snapshot batch."""
 
 
 @dataclass
@@ -218,7 +218,7 @@ def update_policy(
     `generator` draws the mini-batches and Fisher subsets (so two estimators run with the same
     seed see the same data); `probe_generator` draws only the variance-probe mini-batches, so
     switching the probe off does not change training. `draw` samples steps with the current
-    iterate (needed by a fresh-sample estimator, FreshDraws in svrpo/core/step_rows.py).
+    iterate (needed by a fresh-sample estimator, FreshDraws in svrpo/algorithm/step_rows.py).
     surrogate_improvement and mean_kl are measured on the snapshot batch whichever rows the
     steps read.
     """

@@ -4,7 +4,7 @@ saved and restored with the run's checkpoints.
 
 The update calls these methods on every part alike, so a new part with state (or with
 nothing to save) needs no edit in the update, the run or the checkpoint. A part that draws
-random numbers takes a named stream from the run's allocator (svrpo/core/streams.py) when it is
+random numbers takes a named stream from the run's allocator (svrpo/algorithm/streams.py) when it is
 built; the allocator saves that stream, so the part's own state_dict stays empty.
 """
 
@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from svrpo.core.gradients import BatchGradients
+    from svrpo.algorithm.gradients import BatchGradients
 
 
 class Part:

@@ -20,7 +20,7 @@ import copy
 
 import torch
 
-from svrpo.core.objectives import SurrogateBatch
+from svrpo.algorithm.objectives import SurrogateBatch
 from svrpo.models.parameters import flat_gradient, flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
 

@@ -12,8 +12,8 @@ from collections.abc import Callable
 
 import torch
 
+from svrpo.algorithm.objectives import SurrogateBatch, surrogate
 from svrpo.config import Surrogate
-from svrpo.core.objectives import SurrogateBatch, surrogate
 from svrpo.models.parameters import flat_gradient, flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
 

@@ -17,17 +17,17 @@ from typing import Any
 import numpy as np
 import torch
 
+from svrpo.algorithm.allocator import keep_freed_memory
+from svrpo.algorithm.estimators import GradientEstimator
+from svrpo.algorithm.parts import UpdateParts, update_parts
+from svrpo.algorithm.streams import RandomStreams
 from svrpo.config import Config, ConfigError
-from svrpo.core.estimators import GradientEstimator
-from svrpo.core.parts import UpdateParts, update_parts
-from svrpo.core.streams import RandomStreams
 from svrpo.errors import CheckpointError, one_line
 from svrpo.models.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction
 from svrpo.models.normalization import RewardNormalizer, RunningMeanStd
 from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.sampling.restarting import RestartingSampler
 from svrpo.sampling.sampler import Sampler, uncaptured_state
-from svrpo.tools.allocator import keep_freed_memory
 
 MUST_MATCH = ("env_id", "hidden_sizes", "baseline", "baseline_hidden_sizes", "normalize_observations",
               "normalize_rewards", "num_workers", "envs_per_worker")
@@ -54,7 +54,7 @@ class Run:
     parts: UpdateParts
     """The policy update's estimator, metric, KL anchor and stopping rule, built from config."""
     streams: RandomStreams = field(default_factory=lambda: RandomStreams(0))
-    """Every random stream of the learner, by name (svrpo/core/streams.py)."""
+    """Every random stream of the learner, by name (svrpo/algorithm/streams.py)."""
     reward_normalizer: RewardNormalizer | None = None
     """Scales every sampled batch's rewards (normalize_rewards). Sampling state, like the
     sampler's environments: an undone update does not undo it."""

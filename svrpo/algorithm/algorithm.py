@@ -1,4 +1,4 @@
-"""Algorithm 1: one outer iteration of a run (svrpo/core/run.py builds the run and owns its state).
+"""Algorithm 1: one outer iteration of a run (svrpo/algorithm/run.py builds the run and owns its state).
 
 Per outer iteration (`run_iteration`, with DESIGN.md's decisions): sample exactly N steps with
 the anchor policy, compute GAE advantages with the current baseline, standardise them over the
@@ -22,10 +22,10 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
-from svrpo.core.advantages import STANDARDIZE_EPS, generalized_advantages, standardize
-from svrpo.core.objectives import SurrogateBatch, old_log_prob
-from svrpo.core.run import Run, build_run, make_sampler
-from svrpo.core.update import UpdateStats, update_policy
+from svrpo.algorithm.advantages import STANDARDIZE_EPS, generalized_advantages, standardize
+from svrpo.algorithm.objectives import SurrogateBatch, old_log_prob
+from svrpo.algorithm.run import Run, build_run, make_sampler
+from svrpo.algorithm.update import UpdateStats, update_policy
 from svrpo.models.baselines import explained_variance
 from svrpo.models.parameters import nonfinite_tensors
 from svrpo.models.policy import GaussianMlpPolicy
@@ -76,7 +76,7 @@ def advantage_scale(run: Run, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]
 def fresh_surrogate_batch(run: Run, batch: Batch, scale: tuple[torch.Tensor, torch.Tensor],
                           sampling_policy: GaussianMlpPolicy) -> PreparedBatch:
     """A fresh batch drawn with the inner iterate w_j (run.policy now) made ready for the
-    fresh-sample loop (svrpo/fresh/gradients.py): advantages from the current baseline,
+    fresh-sample loop (svrpo/algorithm/fresh/gradients.py): advantages from the current baseline,
     standardised with the snapshot batch's mean and standard deviation (the scale g~ was computed
     on, so that the estimators' corrections and g~ agree), log pi_{w_j}(a|s) as old_log_prob (the
     importance ratios' denominator) and the sampling policy pi_{w~}'s means as old_mean (the
@@ -226,7 +226,7 @@ def run_iteration(run: Run) -> IterationResult:
 
 
 class DrawsWithIterate:
-    """The update's `draw` (svrpo.core.step_rows.DrawWithIterate): steps sampled inside the
+    """The update's `draw` (svrpo.algorithm.step_rows.DrawWithIterate): steps sampled inside the
     inner loop with the policy as it is then (w_j), prepared by fresh_surrogate_batch against
     the snapshot batch (its sampling policy w~ and its advantage scale), each kept with its value
     targets for the critic's fit. Called only by an estimator that draws (FreshDraws)."""

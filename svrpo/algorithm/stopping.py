@@ -9,18 +9,18 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
+from svrpo.algorithm.lifecycle import Part
 from svrpo.config import Config
-from svrpo.core.lifecycle import Part
 
 if TYPE_CHECKING:
-    from svrpo.core.gradients import BatchGradients
-    from svrpo.core.streams import RandomStreams
+    from svrpo.algorithm.gradients import BatchGradients
+    from svrpo.algorithm.streams import RandomStreams
 
 
 @runtime_checkable
 class StoppingRule(Protocol):
     """Asked after every inner step that reached the line search; a part with the
-    svrpo.core.lifecycle.Part methods (start, state_dict, load_state_dict)."""
+    svrpo.algorithm.lifecycle.Part methods (start, state_dict, load_state_dict)."""
 
     def stop(self, step_accepted: bool) -> bool:
         """True to end the inner loop now (the update then reports stopped_early = 1)."""

@@ -5,9 +5,9 @@ STORM-PG, and their plain fresh-SGD twin), inside the trust region.
 * `gradients.py`  the per-decision importance weights and the gradients on one fresh batch;
 * `base.py`       what the four estimators share (the part lifecycle, the recorded path);
 * `svrpg.py`, `srvrpg.py`, `stormpg.py`, `sgd.py`: one estimator each;
-* `loop.py`       one name kept for an old import (the steps run in svrpo.core.update, their
-                  rows come from svrpo.core.step_rows.FreshDraws).
+* `loop.py`       one name kept for an old import (the steps run in svrpo.algorithm.update, their
+                  rows come from svrpo.algorithm.step_rows.FreshDraws).
 
-Torch only; nothing here but loop.py imports svrpo.core.estimators (which registers these
+Torch only; nothing here but loop.py imports svrpo.algorithm.estimators (which registers these
 estimators).
 """
