@@ -46,10 +46,12 @@ def imported_top_levels(source: str, module: str) -> Iterator[tuple[int, str]]:
     `module` (e.g. "svrpo.algorithm.update"), relative imports resolved against it."""
     package = module.split(".")[:-1]  # where a relative import of this module starts
     for node in ast.walk(ast.parse(source)):
+        if not isinstance(node, (ast.Import, ast.ImportFrom)):
+            continue
         targets: list[str] = []
         if isinstance(node, ast.Import):
             targets = [alias.name for alias in node.names]
-        elif isinstance(node, ast.ImportFrom):
+        else:
             base = package[: len(package) - node.level + 1] if node.level else []
             name = ".".join(base + ([node.module] if node.module else []))
             # `from svrpo import x` imports the top-level x (or a name of __init__)
