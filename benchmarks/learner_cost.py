@@ -40,8 +40,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 from svrpo.algorithm.algorithm import _policy_inputs, build_run, run_iteration, snapshot_of, surrogate_batch  # noqa: E402
 from svrpo.algorithm.parts import update_parts  # noqa: E402
 from svrpo.algorithm.update import update_policy  # noqa: E402
-from svrpo.config import make_preset  # noqa: E402
 from svrpo.models.baselines import MlpValueFunction  # noqa: E402
+from svrpo.presets import make_preset  # noqa: E402
 from svrpo.tools.bench import UPDATE_PARTS, _Timers, machine_info, timed_parts  # noqa: E402
 
 

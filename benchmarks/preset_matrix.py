@@ -21,7 +21,7 @@ import gymnasium
 import mujoco
 import torch
 
-from svrpo.config import PRESET_NAMES, make_preset
+from svrpo.presets import PRESET_NAMES, make_preset
 from svrpo.rundir.training import train
 
 TASKS = ("Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")

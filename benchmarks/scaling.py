@@ -30,7 +30,7 @@ POINTS: list[tuple[int, tuple[int, ...]]] = [
 def one_point(batch_size: int, hidden: tuple[int, ...]) -> dict[str, Any]:
     """Warm-up iteration, then one timed iteration; peak RSS of this process."""
     from svrpo.algorithm.algorithm import build_run, run_iteration
-    from svrpo.config import make_preset
+    from svrpo.presets import make_preset
 
     config = make_preset("svrpo", "Hopper-v5", "paper").replace(
         batch_size=batch_size, minibatch_size=batch_size // 10, inner_steps=50,

@@ -55,7 +55,7 @@ def run_ours(env_id: str, seed: int, iterations: int) -> dict[str, Any]:
 
     import numpy as np
 
-    from svrpo.config import make_preset
+    from svrpo.presets import make_preset
     from svrpo.rundir.training import train
 
     config = make_preset("trpo", env_id, "laptop").replace(

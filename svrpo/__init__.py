@@ -13,8 +13,10 @@
 
 from typing import Any
 
-from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, field_docs, make_preset
+from svrpo.config import Config, field_docs
 from svrpo.config_file import load_config
+from svrpo.errors import ConfigError
+from svrpo.presets import PRESET_NAMES, SCALES, make_preset
 
 _ESTIMATOR_NAMES = ("BatchGradients", "GradientEstimator", "FullGradient", "MinibatchGradient",
                     "SvrgGradient", "SarahGradient", "StormGradient")

@@ -15,9 +15,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from svrpo.arguments import CommandLineError, OneLineParser
-from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, field_names, make_preset
-from svrpo.errors import CheckpointError, EnvError, EvaluationError, SpecError
+from svrpo.config import Config, coerce_field, field_names
+from svrpo.errors import CheckpointError, ConfigError, EnvError, EvaluationError, SpecError
 from svrpo.errors import one_line as checkpoint_one_line
+from svrpo.presets import PRESET_NAMES, SCALES, make_preset
 from svrpo.rundir.run_files import RunDirectoryError, check_claim, check_run_directory_path
 from svrpo.rundir.run_lock import LockedError, exclusive_writer
 

@@ -20,7 +20,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, make_preset
+from svrpo.config import Config, coerce_field
+from svrpo.errors import ConfigError
+from svrpo.presets import PRESET_NAMES, SCALES, make_preset
 
 DEFAULT_PRESET = "svrpo"
 DEFAULT_SCALE = "modern"

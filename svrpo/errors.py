@@ -2,6 +2,10 @@
 them without importing torch)."""
 
 
+class ConfigError(ValueError):
+    """A configuration that cannot run, with a message saying which field and why."""
+
+
 class TrainingError(RuntimeError):
     """The run cannot go on (e.g. sampling workers keep dying); its last iteration is checkpointed."""
 

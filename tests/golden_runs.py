@@ -47,7 +47,7 @@ def run_case(name: str, directory: Path) -> list[dict[str, str]]:
     """Train case `name` in `directory`; its progress.csv rows minus the wall-clock columns."""
     import csv
 
-    from svrpo.config import make_preset
+    from svrpo.presets import make_preset
     from svrpo.rundir.training import train
 
     preset, overrides = CASES[name]

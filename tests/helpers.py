@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from svrpo.config import Config, coerce_field, make_preset
+from svrpo.config import Config, coerce_field
+from svrpo.presets import make_preset
 from svrpo.rundir import checkpoint
 from svrpo.rundir.logging import WALL_CLOCK_COLUMNS
 

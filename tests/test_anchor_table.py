@@ -10,7 +10,7 @@ from types import ModuleType
 
 import pytest
 
-from svrpo.config import make_preset
+from svrpo.presets import make_preset
 from tests.helpers import load_benchmark
 
 

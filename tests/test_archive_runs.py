@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 import svrpo
-from svrpo.config import make_preset
+from svrpo.presets import make_preset
 from tests.helpers import progress_rows, without_clock
 
 REPO = Path(__file__).resolve().parents[1]

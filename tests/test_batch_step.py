@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import svrpo
-from svrpo.config import make_preset
+from svrpo.presets import make_preset
 from svrpo.sampling.batch_step import MUJOCO_BATCH, STEPPER_BY_TASK, BatchStep, make_stepper, uses_batch_step
 from svrpo.sampling.envs import make_env
 from svrpo.sampling.gym_step import GymStep

@@ -29,9 +29,10 @@ import torch
 
 from svrpo.algorithm import algorithm
 from svrpo.algorithm.objectives import SurrogateBatch
-from svrpo.config import Config, make_preset
+from svrpo.config import Config
 from svrpo.models.normalization import RunningMeanStd
 from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.presets import make_preset
 from svrpo.sampling.sampler import Batch
 
 GAMMA = 0.5

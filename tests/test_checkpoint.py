@@ -14,7 +14,7 @@ import torch
 
 from svrpo import cli
 from svrpo.algorithm.algorithm import build_run
-from svrpo.config import make_preset
+from svrpo.presets import make_preset
 from svrpo.rundir import checkpoint
 from svrpo.rundir.checkpoint import CheckpointError
 from svrpo.rundir.logging import RunLogger, read_progress, truncate_progress

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from svrpo.config import PRESET_NAMES, Config, make_preset
+from svrpo.config import Config
+from svrpo.presets import PRESET_NAMES, make_preset
 
 SMALL = ["--steps", "2000", "--batch_size", "1000", "--minibatch_size", "250", "--num_workers", "1",
          "--envs_per_worker", "2", "--eval_every", "1", "--eval_episodes", "1", "--no-progress"]

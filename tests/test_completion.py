@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from svrpo.config import make_preset
+from svrpo.presets import make_preset
 from svrpo.rundir.completion import ProgressError, is_finished, logged_iterations, run_progress
 
 HEADER = "iteration,env_steps,average_return"

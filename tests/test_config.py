@@ -13,17 +13,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from svrpo.config import (
-    PRESET_NAMES,
-    SCALES,
-    Config,
-    ConfigError,
-    coerce_field,
-    differing_fields,
-    field_names,
-    make_preset,
-    validate,
-)
+from svrpo.config import Config, coerce_field, differing_fields, field_names, validate
+from svrpo.errors import ConfigError
+from svrpo.presets import PRESET_NAMES, SCALES, make_preset
 from svrpo.sampling.envs import horizon
 
 TASKS = ("Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")

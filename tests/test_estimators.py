@@ -28,9 +28,10 @@ from svrpo.algorithm.estimators import (
 from svrpo.algorithm.gradients import SubsetGradient, subset_gradient
 from svrpo.algorithm.objectives import SurrogateBatch, old_log_prob, per_sample_surrogate, surrogate
 from svrpo.algorithm.parts import estimator_for
-from svrpo.config import Surrogate, make_preset
+from svrpo.config import Surrogate
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.presets import make_preset
 
 N, OBS_DIM, ACT_DIM = 48, 3, 2
 KINDS: tuple[Surrogate, ...] = ("ratio", "loglik")

@@ -14,7 +14,7 @@ import pytest
 from svrpo import cli
 from svrpo.analysis.evaluation import EvaluationError, evaluate, find_checkpoint, load_policy
 from svrpo.cli import main
-from svrpo.config import make_preset
+from svrpo.presets import make_preset
 from svrpo.rundir.training import train
 from tests.helpers import _tiny_train
 

@@ -23,7 +23,9 @@ from typing import Any, Literal
 import pytest
 
 import svrpo
-from svrpo.config import Config, ConfigError, make_preset
+from svrpo.config import Config
+from svrpo.errors import ConfigError
+from svrpo.presets import make_preset
 from svrpo.rundir import checkpoint
 from tests.helpers import progress_rows, without_clock
 

@@ -32,8 +32,9 @@ from svrpo.algorithm.fresh.stormpg import StormPgGradient, stormpg_gradient
 from svrpo.algorithm.fresh.svrpg import SvrpgGradient, svrpg_gradient
 from svrpo.algorithm.objectives import SurrogateBatch
 from svrpo.algorithm.streams import RandomStreams
-from svrpo.config import FRESH_ESTIMATORS, FRESH_PRESET_BASE, Estimator, differing_fields, make_preset
+from svrpo.config import FRESH_ESTIMATORS, Estimator, differing_fields
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
+from svrpo.presets import FRESH_PRESET_BASE, make_preset
 from tests.helpers import progress_rows, without_clock
 
 TARGET = 0.7

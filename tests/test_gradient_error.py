@@ -34,9 +34,9 @@ from svrpo.analysis.gradient_error import (
     replay_errors,
     vector_error,
 )
-from svrpo.config import make_preset
 from svrpo.models.parameters import flat_gradient, flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.presets import make_preset
 
 TARGET = 0.7
 """c: the reward's optimal gain."""

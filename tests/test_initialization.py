@@ -12,9 +12,11 @@ import torch
 from torch import nn
 
 from svrpo.algorithm.algorithm import build_run
-from svrpo.config import Config, ConfigError, make_preset
+from svrpo.config import Config
+from svrpo.errors import ConfigError
 from svrpo.models.baselines import MlpValueFunction
 from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.presets import make_preset
 
 
 def _linears(module: nn.Module) -> list[nn.Linear]:

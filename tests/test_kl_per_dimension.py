@@ -17,8 +17,8 @@ import torch
 
 from svrpo.algorithm.parts import update_parts
 from svrpo.algorithm.update import UpdateStats, update_policy
-from svrpo.config import make_preset
 from svrpo.models.parameters import flat_parameters
+from svrpo.presets import make_preset
 from tests.test_update_reference import (
     ACT_DIM,
     HIDDEN,

@@ -20,9 +20,10 @@ PACKAGE = Path(svrpo.__file__).parent
 
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("errors", "yaml_input", "arguments"),  # import nothing of svrpo
-    ("config", "sampling"),                 # the Config schema; the torch-free process boundary
-    ("config_file", "models"),              # configs read from files; the networks
-    ("algorithm",),                         # Algorithm 1: iteration, run, parts, trust region
+    ("coercion", "sampling"),               # a field's value from text; the torch-free workers
+    ("config",),                            # the Config schema and its validation
+    ("presets", "models"),                  # the named configs; the networks
+    ("config_file", "algorithm"),           # a config from a file; Algorithm 1 (run, parts, TR)
     ("rundir",),                            # a run's directory: training loop, checkpoints, logs
     ("analysis",),                          # reading a run: plots, evaluation, gradient error
     ("experiments",),                       # sweeps of runs, reports and tables

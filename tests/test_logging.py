@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 import svrpo
-from svrpo.config import make_preset
+from svrpo.presets import make_preset
 from svrpo.rundir.logging import _NAMESPACE_COLUMNS, TENSORBOARD_NAMESPACES, tensorboard_tag
 
 STEP_COLUMN = "env_steps"

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from svrpo.analysis.evaluation import load_policy, run_episodes
-from svrpo.config import make_preset
+from svrpo.presets import make_preset
 from svrpo.rundir.training import train
 from svrpo.sampling.envs import make_env
 from tests.helpers import load_benchmark

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from svrpo.config import make_preset
+from svrpo.presets import make_preset
 from tests.helpers import load_benchmark
 
 report = load_benchmark("paper_swimmer_report", "results/figure1-paper-swimmer")

@@ -13,9 +13,9 @@ import pytest
 
 from svrpo.analysis.plotting import find_run_dirs
 from svrpo.cli import main
-from svrpo.config import make_preset
 from svrpo.experiments.report import group_by_experiment
 from svrpo.experiments.table import final_window, first_reaching
+from svrpo.presets import make_preset
 
 PNG = b"\x89PNG\r\n\x1a\n"
 ITERATIONS = 20  # window k = ceil(0.1 * 20) = 2 iterations
@@ -254,7 +254,7 @@ def test_plot_refuses_an_unknown_metric_and_a_non_positive_window(
 
 def _path_dependent_presets() -> list[str]:
     from svrpo.algorithm.parts import estimator_for
-    from svrpo.config import PRESET_NAMES
+    from svrpo.presets import PRESET_NAMES
 
     return [p for p in PRESET_NAMES if estimator_for(make_preset(p, "Hopper-v5", "laptop")).path_dependent]
 
@@ -295,7 +295,7 @@ def test_recursive_estimators_get_a_figure_of_their_own_error(tmp_path: Path, re
 
 def test_every_preset_has_its_own_colour_and_the_paper_keeps_svrpo_red_trpo_blue() -> None:
     from svrpo.analysis.plotting import PRESET_COLORS
-    from svrpo.config import PRESET_NAMES
+    from svrpo.presets import PRESET_NAMES
 
     assert set(PRESET_COLORS) == set(PRESET_NAMES)
     assert len(set(PRESET_COLORS.values())) == len(PRESET_NAMES)

@@ -16,8 +16,8 @@ import torch
 
 from svrpo.algorithm.algorithm import sample
 from svrpo.algorithm.run import build_run
-from svrpo.config import make_preset
 from svrpo.models.normalization import RewardNormalizer
+from svrpo.presets import make_preset
 
 
 class VecNormalizeRewards:

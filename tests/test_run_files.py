@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from svrpo import cli
-from svrpo.config import Config, make_preset
+from svrpo.config import Config
+from svrpo.presets import make_preset
 from svrpo.rundir import checkpoint
 from svrpo.rundir.run_files import RunDirectoryError
 from svrpo.rundir.training import train

@@ -16,7 +16,8 @@ import torch
 import svrpo
 from svrpo.algorithm.parts import PART_REGISTRIES
 from svrpo.algorithm.streams import LEGACY_OFFSETS, RandomStreams, stream_seed
-from svrpo.config import PRESET_NAMES, Config, make_preset
+from svrpo.config import Config
+from svrpo.presets import PRESET_NAMES, make_preset
 from svrpo.rundir.run_files import RunDirectoryError
 from tests.helpers import progress_rows, without_clock
 

@@ -11,8 +11,8 @@ from types import ModuleType
 
 import pytest
 
-from svrpo.config import make_preset
 from svrpo.experiments.specs import load_spec
+from svrpo.presets import make_preset
 from tests.helpers import load_benchmark
 
 ROOT = Path(__file__).resolve().parents[1]

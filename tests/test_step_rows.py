@@ -23,8 +23,9 @@ from svrpo.algorithm.gradients import BatchGradients
 from svrpo.algorithm.step_rows import FreshDraws, SnapshotMinibatches, step_rows_for
 from svrpo.algorithm.streams import RandomStreams
 from svrpo.algorithm.trust_region.anchors import BudgetedAnchor, IterateAnchor, SamplingAnchor
-from svrpo.config import FRESH_ESTIMATORS, make_preset
+from svrpo.config import FRESH_ESTIMATORS
 from svrpo.models.parameters import flat_parameters
+from svrpo.presets import make_preset
 from tests.test_fresh import ITERATE, SNAPSHOT, LinearGaussian, _estimator, _Snapshot, _tiny, fresh_batch
 from tests.test_update_reference import entry_policy, sampled_rows, surrogate_batch
 

@@ -27,7 +27,8 @@ import svrpo
 from svrpo.algorithm.estimators import PageGradient
 from svrpo.algorithm.parts import PART_REGISTRIES
 from svrpo.algorithm.streams import stream_seed
-from svrpo.config import PRESET_NAMES, Config, make_preset
+from svrpo.config import Config
+from svrpo.presets import PRESET_NAMES, make_preset
 from svrpo.rundir import checkpoint
 from tests.helpers import nested_equal, progress_rows, without_clock
 

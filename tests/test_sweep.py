@@ -13,9 +13,9 @@ from types import SimpleNamespace
 import pytest
 
 from svrpo.cli import main
-from svrpo.config import make_preset
 from svrpo.experiments import NAMED_EXPERIMENTS, LocalBackend, SpecError, load_spec, plan, plan_all
 from svrpo.experiments.specs import describe_seeds
+from svrpo.presets import make_preset
 from tests.helpers import progress_rows, without_clock
 
 TINY_YAML = """\

@@ -11,8 +11,8 @@ from svrpo.algorithm.algorithm import build_run, surrogate_batch
 from svrpo.algorithm.objectives import mean_kl_from
 from svrpo.algorithm.parts import update_parts
 from svrpo.algorithm.update import update_policy
-from svrpo.config import make_preset
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
+from svrpo.presets import make_preset
 from svrpo.rundir.training import train
 from tests.helpers import progress_rows, without_clock
 

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from svrpo.config import make_preset
+from svrpo.presets import make_preset
 from svrpo.rundir import checkpoint, training
 from svrpo.rundir.training import train
 from tests.helpers import ENV, progress_rows, without_clock

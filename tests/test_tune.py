@@ -15,8 +15,9 @@ from pathlib import Path
 import pytest
 
 from svrpo.cli import main
-from svrpo.config import Config, make_preset
+from svrpo.config import Config
 from svrpo.config_file import load_config
+from svrpo.presets import make_preset
 from svrpo.tuning import load_tune_spec
 from tests.helpers import progress_rows
 

@@ -36,9 +36,10 @@ from svrpo.algorithm.streams import stream_seed
 from svrpo.algorithm.trust_region.line_search import backtracking_line_search
 from svrpo.algorithm.trust_region.metrics import fisher_vector_product
 from svrpo.algorithm.update import UpdateStats, update_policy
-from svrpo.config import Config, differing_fields, make_preset
+from svrpo.config import Config, differing_fields
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.presets import make_preset
 
 DTYPE = torch.float64
 OBS_DIM, ACT_DIM, HIDDEN = 3, 2, (5,)

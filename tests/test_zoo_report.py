@@ -7,7 +7,7 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
-from svrpo.config import make_preset
+from svrpo.presets import make_preset
 from tests.helpers import load_benchmark
 
 COLUMNS = ["iteration", "env_steps", "average_return", "eval_return", "episodes", "wall_time",

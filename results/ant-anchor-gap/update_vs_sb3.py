@@ -41,9 +41,9 @@ from torch import nn
 from svrpo.algorithm.objectives import SurrogateBatch
 from svrpo.algorithm.parts import update_parts
 from svrpo.algorithm.update import update_policy
-from svrpo.config import make_preset
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
+from svrpo.presets import make_preset
 
 THRESHOLD = 1e-3
 """The protocol's bar: the updates agree where the relative difference is below it."""

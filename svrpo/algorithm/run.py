@@ -21,8 +21,8 @@ from svrpo.algorithm.allocator import keep_freed_memory
 from svrpo.algorithm.estimators import GradientEstimator
 from svrpo.algorithm.parts import UpdateParts, update_parts
 from svrpo.algorithm.streams import RandomStreams
-from svrpo.config import Config, ConfigError
-from svrpo.errors import CheckpointError, one_line
+from svrpo.config import Config
+from svrpo.errors import CheckpointError, ConfigError, one_line
 from svrpo.models.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction
 from svrpo.models.normalization import RewardNormalizer, RunningMeanStd
 from svrpo.models.policy import GaussianMlpPolicy

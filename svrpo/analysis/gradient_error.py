@@ -52,8 +52,8 @@ from svrpo.algorithm.parts import UpdateParts
 from svrpo.algorithm.step_rows import DrawWithIterate
 from svrpo.algorithm.trust_region.metrics import MatVec
 from svrpo.algorithm.update import update_policy
-from svrpo.config import Config, ConfigError, Surrogate
-from svrpo.errors import CheckpointError
+from svrpo.config import Config, Surrogate
+from svrpo.errors import CheckpointError, ConfigError
 from svrpo.models.parameters import flat_gradient, flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
 

@@ -19,7 +19,7 @@ from typing import Literal
 
 import numpy as np
 
-from svrpo.config import PRESET_NAMES
+from svrpo.presets import PRESET_NAMES
 from svrpo.rundir.logging import read_progress
 
 # The same preset keeps its colour in every figure (the paper draws SVRPO red, TRPO blue).

@@ -115,7 +115,8 @@ def _path_dependent(run_dir: Path) -> bool:
     """Whether the run's estimator part says its estimates depend on the inner path (asked of
     the part its registry builds, so a new recursive estimator is drawn without an edit here)."""
     from svrpo.algorithm.parts import estimator_for
-    from svrpo.config import Config, ConfigError
+    from svrpo.config import Config
+    from svrpo.errors import ConfigError
 
     try:
         config = Config.from_json((run_dir / "config.json").read_text())

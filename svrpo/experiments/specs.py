@@ -26,8 +26,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from svrpo.config import PRESET_NAMES, SCALES, Config, ConfigError, Scale, coerce_field, make_preset
-from svrpo.errors import SpecError
+from svrpo.config import Config, Scale, coerce_field
+from svrpo.errors import ConfigError, SpecError
+from svrpo.presets import PRESET_NAMES, SCALES, make_preset
 
 DEFAULT_SEEDS = 5
 """Seeds per (task, preset) of the named experiments (the paper ran one)."""
@@ -48,11 +49,11 @@ class ExperimentSpec:
     tasks: tuple[str, ...]
     """Gymnasium task ids (one figure panel each)."""
     presets: tuple[str, ...]
-    """Preset names from svrpo.config.PRESET_NAMES (one curve each)."""
+    """Preset names from svrpo.presets.PRESET_NAMES (one curve each)."""
     seeds: tuple[int, ...] = tuple(range(DEFAULT_SEEDS))
     """Seeds of every (task, preset) pair."""
     scale: Scale = "laptop"
-    """`laptop` or `paper` (svrpo.config.make_preset)."""
+    """`laptop` or `paper` (svrpo.presets.make_preset)."""
     overrides: dict[str, Any] = field(default_factory=dict)
     """Config fields set on every run after the preset, already converted to their types."""
 

@@ -333,8 +333,8 @@ def update_breakdown(
     from svrpo.algorithm.algorithm import build_run, run_iteration, snapshot_of, surrogate_batch
     from svrpo.algorithm.parts import update_parts
     from svrpo.algorithm.update import update_policy
-    from svrpo.config import make_preset
     from svrpo.models.baselines import MlpValueFunction
+    from svrpo.presets import make_preset
 
     common = {"seed": seed, "eval_every": 0, **overrides}
     svrpo_config = make_preset("svrpo", env_id, scale).replace(  # type: ignore[arg-type]
@@ -411,7 +411,7 @@ def trained_snapshot(env_id: str, iterations: int, seed: int = 0) -> tuple[Polic
     episodes, different states), not a converged one. Returns the snapshot and its record.
     """
     from svrpo.algorithm.algorithm import build_run, run_iteration, snapshot_of
-    from svrpo.config import make_preset
+    from svrpo.presets import make_preset
 
     config = make_preset("trpo", env_id, "laptop").replace(seed=seed, eval_every=0)
     run = build_run(config)

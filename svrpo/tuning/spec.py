@@ -36,8 +36,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from svrpo.config import _HINTS, PRESET_NAMES, SCALES, Config, ConfigError, coerce_field, make_preset
-from svrpo.errors import SpecError
+from svrpo.config import _HINTS, Config, coerce_field
+from svrpo.errors import ConfigError, SpecError
+from svrpo.presets import PRESET_NAMES, SCALES, make_preset
 from svrpo.yaml_input import YamlDocument, read_yaml
 
 ParamKind = Literal["float", "log_float", "int", "log_int", "categorical", "fraction"]

@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from svrpo.config import Config, ConfigError, differing_fields
-from svrpo.errors import SpecError
+from svrpo.config import Config, differing_fields
+from svrpo.errors import ConfigError, SpecError
 from svrpo.experiments.backends import Backend
 from svrpo.experiments.jobs import JobResult, RunJob, RunStatus, completed_iterations, prepare, status
 from svrpo.rundir.run_lock import LockedError, exclusive_writer, record_holder
