@@ -19,7 +19,11 @@ from svrpo.errors import ConfigError
 from svrpo.presets import PRESET_NAMES, SCALES, make_preset
 
 _ESTIMATOR_NAMES = ("BatchGradients", "GradientEstimator", "FullGradient", "MinibatchGradient",
-                    "SvrgGradient", "SarahGradient", "StormGradient")
+                    "SvrgGradient", "SarahGradient", "StormGradient", "PageGradient", "SvrpgGradient",
+                    "SrvrpgGradient", "StormPgGradient", "FreshMinibatchGradient")
+"""The estimator protocol, its gradient oracle and the class of every entry of the ESTIMATORS
+registry (svrpo.algorithm.estimators), named here without importing torch; tests/test_public_names
+checks the list against the registry."""
 
 __all__ = ["PRESET_NAMES", "SCALES", "Config", "ConfigError", "field_docs", "load_config", "load_policy",
            "make_preset", "measure_gradient_error", "train", "__version__", *_ESTIMATOR_NAMES]

@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from svrpo import cli
-from svrpo.algorithm.algorithm import build_run
+from svrpo.algorithm.run import build_run
 from svrpo.presets import make_preset
 from svrpo.rundir import checkpoint
 from svrpo.rundir.checkpoint import CheckpointError

@@ -22,7 +22,7 @@ import torch
 from torch import nn
 
 import svrpo
-from svrpo.algorithm.algorithm import build_run, run_iteration
+from svrpo.algorithm.algorithm import run_iteration
 from svrpo.algorithm.estimators import ESTIMATORS
 from svrpo.algorithm.fresh.base import FreshEstimator, FreshGradientEstimator
 from svrpo.algorithm.fresh.gradients import FreshGradients, importance_weights
@@ -31,6 +31,7 @@ from svrpo.algorithm.fresh.srvrpg import SrvrpgGradient, srvrpg_gradient
 from svrpo.algorithm.fresh.stormpg import StormPgGradient, stormpg_gradient
 from svrpo.algorithm.fresh.svrpg import SvrpgGradient, svrpg_gradient
 from svrpo.algorithm.objectives import SurrogateBatch
+from svrpo.algorithm.run import build_run
 from svrpo.algorithm.streams import RandomStreams
 from svrpo.config import FRESH_ESTIMATORS, Estimator, differing_fields
 from svrpo.models.parameters import flat_parameters, set_flat_parameters

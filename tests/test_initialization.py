@@ -11,7 +11,7 @@ import pytest
 import torch
 from torch import nn
 
-from svrpo.algorithm.algorithm import build_run
+from svrpo.algorithm.run import build_run
 from svrpo.config import Config
 from svrpo.errors import ConfigError
 from svrpo.models.baselines import MlpValueFunction

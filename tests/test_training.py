@@ -7,9 +7,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from svrpo.algorithm.algorithm import build_run, surrogate_batch
+from svrpo.algorithm.algorithm import surrogate_batch
 from svrpo.algorithm.objectives import mean_kl_from
 from svrpo.algorithm.parts import update_parts
+from svrpo.algorithm.run import build_run
 from svrpo.algorithm.update import update_policy
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
 from svrpo.presets import make_preset

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from svrpo.algorithm import algorithm, update
-from svrpo.algorithm.algorithm import build_run
 from svrpo.algorithm.estimators import SvrgGradient
+from svrpo.algorithm.run import build_run
 from svrpo.models.parameters import flat_parameters
 from tests.helpers import ENV, _numerics_config
 

@@ -48,9 +48,10 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from svrpo.algorithm.algorithm import build_run, snapshot_of, surrogate_batch  # noqa: E402
+from svrpo.algorithm.algorithm import snapshot_of, surrogate_batch  # noqa: E402
 from svrpo.algorithm.objectives import SurrogateBatch, mean_kl_from, surrogate  # noqa: E402
 from svrpo.algorithm.parts import update_parts  # noqa: E402
+from svrpo.algorithm.run import build_run
 from svrpo.algorithm.update import update_policy  # noqa: E402
 from svrpo.analysis.plotting import mean_and_ci  # noqa: E402
 from svrpo.config import Config  # noqa: E402

@@ -24,7 +24,7 @@ import torch
 
 from svrpo.algorithm.advantages import STANDARDIZE_EPS, generalized_advantages, standardize
 from svrpo.algorithm.objectives import SurrogateBatch, old_log_prob
-from svrpo.algorithm.run import Run, build_run, make_sampler
+from svrpo.algorithm.run import Run
 from svrpo.algorithm.update import UpdateStats, update_policy
 from svrpo.models.baselines import explained_variance
 from svrpo.models.parameters import nonfinite_tensors
@@ -32,7 +32,7 @@ from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.sampler import Batch, steps_per_env
 
-__all__ = ["IterationResult", "PreparedBatch", "Run", "UpdateOutcome", "build_run", "make_sampler",
+__all__ = ["IterationResult", "PreparedBatch", "UpdateOutcome",
            "run_iteration", "sample", "surrogate_batch", "update_and_refit"]
 
 

@@ -350,13 +350,9 @@ def measure_gradient_error(
     """
     import time
 
-    from svrpo.algorithm.algorithm import (
-        advantage_scale,
-        build_run,
-        fresh_surrogate_batch,
-        surrogate_batch,
-    )
+    from svrpo.algorithm.algorithm import advantage_scale, fresh_surrogate_batch, surrogate_batch
     from svrpo.algorithm.parts import update_parts
+    from svrpo.algorithm.run import build_run
     from svrpo.algorithm.streams import RandomStreams
 
     if reference_parts < 2 or reference_steps < 2 * reference_parts:
