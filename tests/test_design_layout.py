@@ -24,10 +24,9 @@ def layout_entries() -> list[tuple[str, list[str]]]:
     folders: list[str] = []  # the folder each indentation level (2, 4, ...) is in
     current = ""
     for line in block.splitlines():
-        if not line.startswith("  ") or line.startswith("svrpo/"):
-            if line and not line.startswith(" "):
-                if not line.startswith("svrpo/"):
-                    break  # tests/, benchmarks/: past the package
+        if line and not line.startswith((" ", "svrpo/")):
+            break  # tests/, benchmarks/: past the package
+        if not line.startswith("  "):
             continue
         indent = len(line) - len(line.lstrip())
         head, _, description = line.strip().partition("  ")
