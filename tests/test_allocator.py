@@ -51,11 +51,11 @@ def test_repeated_large_forward_passes_stop_page_faulting() -> None:
 TRAIN = textwrap.dedent("""
     import sys
     from pathlib import Path
-    import svrpo.algorithm.algorithm
+    import svrpo.algorithm.run
     from svrpo.rundir.training import train
-    from svrpo.config import make_preset
+    from svrpo.presets import make_preset
     if sys.argv[2] == "default":
-        svrpo.algorithm.algorithm.keep_freed_memory = lambda *args, **kwargs: False
+        svrpo.algorithm.run.keep_freed_memory = lambda *args, **kwargs: False
     config = make_preset("svrpo", "InvertedPendulum-v5", "laptop").replace(
         batch_size=2000, minibatch_size=500, total_steps=6000, num_workers=0, envs_per_worker=2,
         eval_every=0)

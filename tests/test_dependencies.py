@@ -173,7 +173,7 @@ sys.meta_path.insert(0, _NoMujocoBatch())
 
 TRAIN = '''
 import svrpo
-from svrpo.config import make_preset
+from svrpo.presets import make_preset
 
 config = make_preset("svrpo", "Hopper-v5", "laptop").replace(
     batch_size=200, total_steps=600, num_workers=1, envs_per_worker=2, hidden_sizes=(8, 8),
