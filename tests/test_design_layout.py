@@ -17,7 +17,7 @@ DESIGN = (ROOT / "DESIGN.md").read_text()
 
 def layout_entries() -> list[tuple[str, list[str]]]:
     """(path of the entry's folder under svrpo/, names) for each line of the layout block below
-    `svrpo/`: the names in its first column (`cli.py, arguments.py`, `algorithm/`) and the .py
+    `svrpo/`: the names in its first column (`config_file.py, yaml_input.py`, `algorithm/`) and the .py
     files its description names for a folder (`conjugate_gradient.py, metrics.py (...)`)."""
     block = DESIGN.split("### Layout", 1)[1].split("```", 2)[1]
     entries: list[tuple[str, list[str]]] = []

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from svrpo.cli import _parse_seed_option
+from svrpo.cli.sweep import parse_seed_option
 from svrpo.experiments.specs import load_spec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,7 +44,7 @@ def _planned_seeds(call: list[str], spec_path: str | None = None) -> tuple[int, 
     CLI's and the spec's parsers."""
     assert call[0] == "sweep"
     spec = load_spec(spec_path or call[1])
-    return spec.with_changes(seeds=_parse_seed_option(_value(call, "--seeds"))).seeds
+    return spec.with_changes(seeds=parse_seed_option(_value(call, "--seeds"))).seeds
 
 
 def _specs(call: list[str]) -> list[str]:
