@@ -1,2 +1,2 @@
-"""Tools around the library: `svrpo bench` and its timing helpers, the allocator settings.
+"""Tools around the library: `svrpo bench` and its timing helpers for benchmarks/.
 """
