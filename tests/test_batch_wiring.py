@@ -29,6 +29,7 @@ import torch
 
 from svrpo.algorithm import algorithm
 from svrpo.algorithm.objectives import SurrogateBatch
+from svrpo.algorithm.run import build_run
 from svrpo.config import Config
 from svrpo.models.normalization import RunningMeanStd
 from svrpo.models.policy import GaussianMlpPolicy
@@ -314,7 +315,7 @@ def recorded_run() -> dict[str, Any]:
         batch_size=500, total_steps=1500, num_workers=0, envs_per_worker=2, eval_every=0,
         normalize_observations=True, hidden_sizes=(16, 16), variance_probe_batches=0,
     )
-    run = algorithm.build_run(config)
+    run = build_run(config)
     try:
         assert run.normalizer is not None
         recorder = RecordingBaseline(run.baseline, run.normalizer)

@@ -201,8 +201,9 @@ def test_killed_tuner_and_killed_run_resume_without_losing_or_repeating_a_trial(
     exactly once, the trials finished before the kill untouched, the interrupted trial's run
     resumed from its checkpoint (its first iteration's row kept, not retrained)."""
     spec = tmp_path / "tiny.yaml"
-    # Longer runs, so that the kills land while a trial trains: 10000 steps.
-    spec.write_text(TINY.replace("steps: 2000", "steps: 10000").replace("pruner: {type: median, rungs: 2, "
+    # Longer runs, so that the kills land while a trial trains: 60000 steps (at 10000 a run on an
+    # idle machine finished in 0.8 s, inside the orphan watch's 1 s poll, and was never stopped).
+    spec.write_text(TINY.replace("steps: 2000", "steps: 60000").replace("pruner: {type: median, rungs: 2, "
                                                                        "startup_trials: 1}",
                                                                        "pruner: {type: none}"))
     root = tmp_path / "tune"
@@ -247,7 +248,7 @@ def test_killed_tuner_and_killed_run_resume_without_losing_or_repeating_a_trial(
     assert progress_rows(run1)[0] == first_row, "the interrupted trial's run was retrained"
     assert "resuming from" in (run1 / "train.log").read_text()
     for run_dir in _run_dirs(root):
-        _check_budget(run_dir, 10000)
+        _check_budget(run_dir, 60000)
     csv_lines = (root / "tiny" / "trials.csv").read_text().splitlines()
     assert [line.split(",")[:2] for line in csv_lines[1:]] == [["0", "COMPLETE"], ["1", "COMPLETE"],
                                                                 ["2", "COMPLETE"]]
