@@ -19,7 +19,7 @@ from svrpo.config import Config, differing_fields
 from svrpo.experiments.specs import ExperimentSpec, SpecError
 from svrpo.rundir import checkpoint
 from svrpo.rundir.atomic import write_text_atomic
-from svrpo.rundir.completion import PROGRESS_FILE, ProgressError, is_finished, logged_iterations
+from svrpo.rundir.completion import ProgressError, is_finished
 from svrpo.rundir.run_files import foreign_entries
 from svrpo.rundir.run_record import write_config, write_meta
 from svrpo.sampling.batch_step import stepper_record
@@ -112,13 +112,6 @@ def plan_all(specs: Sequence[ExperimentSpec], root: Path) -> list[RunJob]:
         return tasks[job.run_dir.parent.parent.name], seeds[int(job.run_dir.name.removeprefix("seed"))]
 
     return sorted(jobs, key=cell)
-
-
-def completed_iterations(run_dir: Path) -> int:
-    """k: the run's progress.csv holds the complete rows of iterations 1..k (0 when absent;
-    svrpo.rundir.completion.logged_iterations, strict: ProgressError for a file training cannot
-    have written)."""
-    return logged_iterations(run_dir / PROGRESS_FILE)
 
 
 def status(job: RunJob) -> RunStatus:

@@ -36,7 +36,8 @@ from typing import TYPE_CHECKING, Any
 from svrpo.config import Config, differing_fields
 from svrpo.errors import ConfigError, SpecError
 from svrpo.experiments.backends import Backend
-from svrpo.experiments.jobs import JobResult, RunJob, RunStatus, completed_iterations, prepare, status
+from svrpo.experiments.jobs import JobResult, RunJob, RunStatus, prepare, status
+from svrpo.rundir.completion import PROGRESS_FILE, logged_iterations
 from svrpo.rundir.run_lock import LockedError, exclusive_writer, record_holder
 from svrpo.rundir.run_record import CONFIG_FILE, write_config
 from svrpo.tuning.scoring import final_window_mean, task_scores, trial_score
@@ -403,7 +404,7 @@ def stage_total_steps(config: Config, run_dir: Path, budget: int) -> int | None:
     done, steps = 0, 0
     path = run_dir / "progress.csv"
     if path.is_file():
-        done = completed_iterations(run_dir)
+        done = logged_iterations(run_dir / PROGRESS_FILE)
         if done:
             steps = int(read_progress(path)[done - 1]["env_steps"])
     room = (budget - steps) // per_iteration
