@@ -212,3 +212,69 @@ def test_equal_budget_tuning_runs_every_study_one_trial_at_a_time_in_turn(tmp_pa
     svrpo_own = {param.field: param for param in specs["svrpo"].space}
     assert (svrpo_own["inner_steps"].low, svrpo_own["inner_steps"].high) == (10, 100)  # the paper's J
     assert (svrpo_own["minibatch_size"].low, svrpo_own["minibatch_size"].high) == (0.02, 0.1)  # its m / N
+
+
+def test_gradient_error_retrains_the_25_percent_policies_then_makes_every_call_of_the_protocol(
+        tmp_path: Path) -> None:
+    """results/gradient-error/run.sh (PROTOCOL.md sections 2, 3 and 7): the nine 25% policies
+    re-trained with the protocol's command, then calls A and B at all 36 policies (primary), the
+    paper's N = 50,000 at Hopper's 12, then A-all and B-all; each call at its policy with the
+    protocol's flags, and a second run of the script makes no call whose output exists."""
+    script = ROOT / "results" / "gradient-error" / "run.sh"
+    root = tmp_path / "ge"
+    calls = _calls(script, tmp_path, str(root))
+    trains = [call for call in calls if call[0] == "train"]
+    measured = [call for call in calls if call[0] == "gradient-error"]
+    assert len(trains) == 9 and len(measured) == 36 * 2 + 12 + 36 * 2 and len(calls) == 9 + 156
+    assert all(call[call.index("--preset"):] == [
+        "--preset", "trpo", "--scale", "modern", "--env", _value(call, "--env"), "--seed",
+        _value(call, "--seed"), "--steps", "249856", "--num_workers", "1", "--envs_per_worker",
+        "16", "--out", str(root / "policies" / _value(call, "--env") / f"seed{_value(call, '--seed')}-25"),
+        "--no-progress"] for call in trains)
+    runs = ROOT / "results" / "runs"
+    tasks = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5")
+    policy = {"0": "figure1-modern/{t}/trpo/seed{k}/checkpoints/iter_000489.pt",
+              "25": None, "50": "bt-screen-trpo-d0.01-modern/{t}/trpo/seed{k}/checkpoints/iter_000245.pt",
+              "100": "figure1-modern/{t}/trpo/seed{k}/checkpoints/iter_000489.pt"}
+    plan = []
+    for call in measured:
+        out = Path(_value(call, "--out"))
+        name, point, seed, task = (out.name.removesuffix(".tmp"), out.parent.name, out.parents[1].name,
+                                   out.parents[2].name)
+        plan.append(name)
+        expected = policy[point]
+        where = (root / "policies" / task / f"{seed}-25") if expected is None else (
+            runs / expected.format(t=task, k=seed.removeprefix("seed")))
+        assert call[1] == str(where) and (where.exists() or expected is None)
+        assert ("--initial" in call) == (point == "0")
+        if name == "N50000":
+            assert task == "Hopper-v5"
+            assert call[call.index("--estimator"):call.index("--out")] == [
+                "--estimator", "full,sgd,svrg", "--batch_size", "50000", "--minibatch_size", "5000",
+                "--inner_steps", "50", "--fisher_subsample", "0.1", "--cg_iters", "10", "--cg_damping",
+                "1e-5", "--backtrack_ratio", "0.5", "--reference-steps", "2097152", "--parts", "64",
+                "--seed", "0"]
+            continue
+        assert _value(call, "--reference-steps") == "524288" and _value(call, "--parts") == "64"
+        assert _value(call, "--seed") == "0"
+        assert ("--inner_stop" in call) == name.endswith("-all")
+        if name.startswith("A"):
+            assert call[call.index("--estimator"):call.index("--estimator") + 6] == [
+                "--estimator", "full,sgd,svrg,sarah,storm,page", "--inner_steps", "8",
+                "--minibatch_size", "512"]
+        else:
+            sources = [Path(call[i + 1]) for i, word in enumerate(call) if word == "--update-from"]
+            assert [source.relative_to(runs).parts[0] for source in sources] == [
+                "bt-confirm-budgeted-sarah-b0.02-modern", "bt-confirm-budgeted-sgd-b0.02-modern",
+                "bt-screen-budgeted-svrg-b0.02-modern", "fs-confirm-stormpg-b256-modern",
+                "fs-confirm-svrpg-sgd-b256-modern", "fs-screen-svrpg-b256-modern",
+                "fs-screen-srvrpg-b256-modern"]
+            assert all(source.parts[-3] == task and source.exists() for source in sources)
+    assert plan[:72] and set(plan[:72]) == {"A", "B"} and set(plan[72:84]) == {"N50000"}
+    assert set(plan[84:]) == {"A-all", "B-all"}
+    assert {(task, seed) for task in tasks for seed in range(3)} == {
+        (Path(_value(call, "--out")).parents[2].name, int(Path(_value(call, "--out")).parents[1].name[4:]))
+        for call in measured}
+    for call in measured:  # the stand-in writes nothing: a finished call is one with its summary
+        (Path(_value(call, "--out")).with_suffix("") / "summary.json").write_text("{}")
+    assert not _calls(script, tmp_path, str(root))[9:]  # only the (stand-in) re-training again
