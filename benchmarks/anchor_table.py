@@ -11,7 +11,7 @@ benchmarks/results/sb3_anchor_1M.md with two tables:
   table.t_interval) of the final deterministic evaluation (the final policy's mean action,
   observation statistics frozen, 10 episodes) and of the training return under both
   definitions: ours (the mean of the per-iteration mean returns over the last 10% of
-  iterations, svrpo.experiments.table) and sb3's (the mean of the last 100 finished episodes);
+  iterations, svrpo.analysis.table) and sb3's (the mean of the last 100 finished episodes);
 * per task, whether our TRPO is distinguishable from sb3-contrib's: Welch's two-sample t-test
   (unequal variances, two-sided; scipy.stats.ttest_ind(equal_var=False)) on each measure, with
   the 95% Welch interval of the difference ours - theirs.
@@ -40,7 +40,7 @@ import numpy as np
 from scipy import stats
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from svrpo.experiments.table import final_window, t_interval  # noqa: E402
+from svrpo.analysis.table import final_window, t_interval  # noqa: E402
 from svrpo.rundir.completion import is_finished  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 

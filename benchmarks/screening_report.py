@@ -18,7 +18,7 @@ the learning curve (mean return over all iterations), the mean KL moved per iter
 median mean_kl, mean over seeds), the environment steps sampled per iteration, the CPU seconds
 and the wall-clock seconds per run (medians; the wall-clock compares configurations only where
 they ran interleaved, two at a time, as the protocols schedule them). Across tasks:
-svrpo.experiments.aggregate's reading with the protocol's
+svrpo.analysis.aggregate's reading with the protocol's
 reference configuration in TRPO's place (IQM of normalised final returns, the normaliser
 re-estimated in every resample; P(X > reference)), P(X > its twin) for every candidate, and the
 selection rule.
@@ -39,7 +39,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from svrpo.analysis.plotting import RunCurve, common_length, load_curve  # noqa: E402
-from svrpo.experiments.aggregate import (  # noqa: E402
+from svrpo.analysis.aggregate import (  # noqa: E402
     REFERENCE,
     aggregate_report,
     area_scores,
@@ -48,7 +48,7 @@ from svrpo.experiments.aggregate import (  # noqa: E402
     window_scores,
 )
 from svrpo.experiments.specs import ExperimentSpec, load_spec  # noqa: E402
-from svrpo.experiments.table import FINAL_FRACTION, t_interval  # noqa: E402
+from svrpo.analysis.table import FINAL_FRACTION, t_interval  # noqa: E402
 from svrpo.rundir.completion import is_finished  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"

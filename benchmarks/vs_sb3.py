@@ -134,7 +134,7 @@ def last_tenth_of_iterations(episodes: list[tuple[int, float]], iterations: int,
     """Our training-return definition on sb3's episodes: the mean over the last 10% of iterations
     of each iteration's mean return of the episodes that ended in it (iterations with no finished
     episode are skipped, as np.nanmean skips our empty cells)."""
-    first = iterations - max(1, -(-iterations // 10))  # k = ceil(0.1 T), as svrpo.experiments.table
+    first = iterations - max(1, -(-iterations // 10))  # k = ceil(0.1 T), as svrpo.analysis.table
     per_iteration: dict[int, list[float]] = {}
     for ended_at, episode_return in episodes:
         iteration = (ended_at - 1) // steps_per_iteration

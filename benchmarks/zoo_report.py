@@ -32,8 +32,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import anchor_table  # noqa: E402
 
-from svrpo.experiments.aggregate import probability_bootstrap  # noqa: E402
-from svrpo.experiments.table import t_interval  # noqa: E402
+from svrpo.analysis.aggregate import probability_bootstrap  # noqa: E402
+from svrpo.analysis.table import t_interval  # noqa: E402
 from svrpo.rundir.completion import is_finished  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 

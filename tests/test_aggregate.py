@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from svrpo.analysis.plotting import RunCurve
-from svrpo.experiments.aggregate import (
+from svrpo.analysis.aggregate import (
     TaskRuns,
     aggregate_report,
     iqm,

@@ -97,7 +97,7 @@ def test_the_reader_sees_local_relative_and_package_imports() -> None:
     """The import reader itself: function-local, relative and `from svrpo import` imports all
     resolve to the top-level name they reach."""
     source = ("def f():\n    from ..rundir import atomic\n    from svrpo import cli\n"
-              "    import svrpo.experiments.table\n    from . import update\n"
+              "    import svrpo.analysis.table\n    from . import update\n"
               "    from svrpo import train\n")
     assert [target for _, target in imported_top_levels(source, "svrpo.algorithm.probe")] == [
-        "rundir", "cli", "experiments", "algorithm", "__init__"]
+        "rundir", "cli", "analysis", "algorithm", "__init__"]

@@ -14,7 +14,7 @@ import pytest
 from svrpo.analysis.plotting import find_run_dirs
 from svrpo.cli import main
 from svrpo.experiments.report import group_by_experiment
-from svrpo.experiments.table import final_window, first_reaching
+from svrpo.analysis.table import final_window, first_reaching
 from svrpo.presets import make_preset
 
 PNG = b"\x89PNG\r\n\x1a\n"

@@ -253,7 +253,7 @@ ALLOWED_GENERATORS: dict[str, str] = {
     "analysis/gradient_error.py": "`svrpo gradient-error` replays one iteration at a checkpoint, "
                                   "outside any run: nothing it draws is resumed",
     "analysis/plotting.py": "bootstrap intervals of finished runs, not part of a run",
-    "experiments/aggregate.py": "bootstrap intervals of finished runs, not part of a run",
+    "analysis/aggregate.py": "bootstrap intervals of finished runs, not part of a run",
     "tools/bench.py": "benchmark inputs, not part of a run",
 }
 """Files of svrpo/ allowed to make a generator or draw from a global one, and why."""

@@ -1,4 +1,4 @@
-"""The per-task interval of svrpo/experiments/table.py against cases worked by hand: a Student-t
+"""The per-task interval of svrpo/analysis/table.py against cases worked by hand: a Student-t
 interval for the mean of n seeds, with the t quantiles typed in from a table."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from svrpo.analysis.plotting import RunCurve
-from svrpo.experiments.table import summarize, t_interval, write_markdown
+from svrpo.analysis.table import summarize, t_interval, write_markdown
 
 T_0975 = {1: 12.706205, 2: 4.302653, 4: 2.776445}
 """t_{0.975, df}: the two-sided 95% quantiles of Student's t (printed tables)."""

@@ -32,7 +32,7 @@ import numpy as np
 from scipy import stats
 
 from svrpo.analysis.evaluation import LoadedPolicy, load_policy, run_episodes
-from svrpo.experiments.table import t_interval
+from svrpo.analysis.table import t_interval
 from svrpo.sampling.envs import make_env
 
 EPISODE_SEED = 2_000_003

@@ -6,7 +6,7 @@
 results/figure1-paper-swimmer/PROTOCOL.md: section 5 names the statistics, section 8 the two
 tests of the paper's Swimmer claim, and section 1 asks whether the answer differs from the laptop
 scale (N = 5,000). This script computes both tests at both scales from the run directories, by
-the same code as the figure1 tables (svrpo.experiments.table.summarize):
+the same code as the figure1 tables (svrpo.analysis.table.summarize):
 
 * "<= 40% of TRPO's samples": svrpo's samples to reach TRPO's final mean return, as a
   percentage of TRPO's steps, is at most 40 ("not reached" fails it);
@@ -47,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import accepted_steps  # noqa: E402
 
 from svrpo.analysis.plotting import RunCurve, load_curve  # noqa: E402
-from svrpo.experiments.table import (  # noqa: E402
+from svrpo.analysis.table import (  # noqa: E402
     TableRow,
     final_text,
     first_reaching,

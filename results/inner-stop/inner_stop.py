@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from a checkout, uninstalled
 
 from svrpo.analysis.plotting import load_curve, mean_and_ci  # noqa: E402
-from svrpo.experiments.table import smoothed_seeds  # noqa: E402
+from svrpo.analysis.table import smoothed_seeds  # noqa: E402
 from svrpo.rundir.completion import is_finished  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 from svrpo.tools.bench import machine_info, update_breakdown  # noqa: E402

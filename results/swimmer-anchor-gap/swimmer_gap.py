@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from svrpo.experiments.table import t_interval  # noqa: E402
+from svrpo.analysis.table import t_interval  # noqa: E402
 from svrpo.rundir.logging import read_progress  # noqa: E402
 
 FIRST, LAST = 196, 245

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 
 from svrpo.analysis.plotting import RunCurve, load_curve, plot_panels
-from svrpo.experiments.aggregate import aggregate_report, write_aggregate
+from svrpo.analysis.aggregate import aggregate_report, write_aggregate
 from svrpo.experiments.specs import NAMED_EXPERIMENTS, PAPER_TASKS
-from svrpo.experiments.table import summarize, write_csv, write_markdown
+from svrpo.analysis.table import summarize, write_csv, write_markdown
 
 REPORT_FILES = ("returns.png", "variance_ratio.png", "estimator_error_ratio.png", "table.md", "table.csv",
                 "aggregate.md", "aggregate.json")

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from svrpo.analysis.plotting import RunCurve, common_length
-from svrpo.experiments.table import smoothed_seeds, untrained_return
+from svrpo.analysis.table import smoothed_seeds, untrained_return
 
 Scores = Sequence[np.ndarray]
 """One (runs,) array of scores per task (normalised for the IQM; returns for P(X > Y))."""
