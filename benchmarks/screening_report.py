@@ -38,7 +38,6 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from svrpo.analysis.plotting import RunCurve, common_length, load_curve  # noqa: E402
 from svrpo.analysis.aggregate import (  # noqa: E402
     REFERENCE,
     aggregate_report,
@@ -47,8 +46,9 @@ from svrpo.analysis.aggregate import (  # noqa: E402
     probability_bootstrap,
     window_scores,
 )
-from svrpo.experiments.specs import ExperimentSpec, load_spec  # noqa: E402
+from svrpo.analysis.plotting import RunCurve, common_length, load_curve  # noqa: E402
 from svrpo.analysis.table import FINAL_FRACTION, t_interval  # noqa: E402
+from svrpo.experiments.specs import ExperimentSpec, load_spec  # noqa: E402
 from svrpo.rundir.completion import is_finished  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"

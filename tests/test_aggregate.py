@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from svrpo.analysis.plotting import RunCurve
 from svrpo.analysis.aggregate import (
     TaskRuns,
     aggregate_report,
@@ -20,6 +19,7 @@ from svrpo.analysis.aggregate import (
     untrained_return,
     write_aggregate,
 )
+from svrpo.analysis.plotting import RunCurve
 
 
 def test_normalised_maps_random_to_0_and_reference_to_1() -> None:

@@ -25,8 +25,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("presets", "models"),                  # the named configs; the networks
     ("config_file", "algorithm"),           # a config from a file; Algorithm 1 (run, parts, TR)
     ("rundir",),                            # a run's directory: training loop, checkpoints, logs
-    ("analysis",),                          # reading a run: plots, evaluation, gradient error
-    ("experiments",),                       # sweeps of runs, reports and tables
+    ("analysis",),                          # reading finished runs: plots, tables, reports, evaluation
+    ("experiments",),                       # sweeps of runs and the named experiments
     ("tuning", "api", "tools"),             # `svrpo tune`; svrpo.train; `svrpo bench`
     ("cli",),                               # the command line
     ("__init__",),                          # the public names

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from svrpo.analysis.plotting import find_run_dirs
-from svrpo.cli import main
-from svrpo.experiments.report import group_by_experiment
+from svrpo.analysis.report import group_by_experiment
 from svrpo.analysis.table import final_window, first_reaching
+from svrpo.cli import main
 from svrpo.presets import make_preset
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -144,6 +144,20 @@ def test_report_table_matches_hand_computed_values(
     assert ("| Walker2d-v5 | svrpo | 2 | 2,000 | 98.0 [91.6, 104.4] | 1000.5 [994.1, 1006.9] | n/a | n/a "
             "| 0.25 |") in markdown
 
+
+
+@pytest.mark.parametrize(("experiment", "tasks"), [("estimators", ["Hopper-v5", "Walker2d-v5"]),
+                                                   ("unnamed", ["Walker2d-v5", "Hopper-v5"])])
+def test_a_report_orders_its_tasks_as_the_named_experiment_else_as_the_paper(
+        tmp_path: Path, experiment: str, tasks: list[str]) -> None:
+    """`svrpo plot` hands the report its order: the named experiment's tasks (estimators: Hopper,
+    Walker2d), any other experiment's in the paper's order (Walker2d before Hopper), neither
+    sorted by name."""
+    for task in ("Walker2d-v5", "Hopper-v5"):
+        write_run(tmp_path, task, "trpo", 0, [1.0, 2.0, 3.0, 4.0], experiment=experiment)
+    assert main(["plot", str(tmp_path)]) == 0
+    table = read_table(tmp_path / "figure2-laptop" / "table.csv")
+    assert [task for task, _ in table] == tasks
 
 def test_one_seed_has_no_interval_and_short_runs_compare_on_common_iterations(tmp_path: Path) -> None:
     root = tmp_path / "runs"

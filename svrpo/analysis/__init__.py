@@ -1,2 +1,3 @@
-"""Reading finished runs: learning-curve plots and deterministic evaluation (and video).
-"""
+"""Reading finished runs: learning-curve plots, the per-experiment reports (table.py: final
+returns and samples to TRPO's final; aggregate.py: IQM and probability of improvement; report.py:
+the figures and tables of a sweep), deterministic evaluation (and video), the gradient error."""

@@ -2,7 +2,7 @@
 
 `plot_runs` draws one panel per task and one line per preset (mean over seeds with a 95%
 bootstrap band); `plot_panels` is the same figure for any grouping, metric and axis, used by
-the per-experiment reports (svrpo.experiments.report).
+the per-experiment reports (svrpo.analysis.report).
 """
 
 from __future__ import annotations

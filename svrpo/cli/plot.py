@@ -39,12 +39,13 @@ def _readable_runs(run_dirs: list[Path]) -> tuple[list[Path], set[str]]:
 
 def run(args: argparse.Namespace, extra: list[str]) -> int:
     """Run directories given by name: one learning-curve PNG, as before. Directories above runs
-    (a sweep root): a report per experiment (svrpo.experiments.report) for runs made by
+    (a sweep root): a report per experiment (svrpo.analysis.report) for runs made by
     `svrpo sweep`, and the learning-curve PNG for any other runs found there."""
     if extra:
         raise UsageError(f"unexpected arguments {' '.join(extra)}")
     from svrpo.analysis.plotting import find_run_dirs, plot_runs
-    from svrpo.experiments.report import default_report_dir, group_by_experiment, write_report
+    from svrpo.analysis.report import default_report_dir, group_by_experiment, write_report
+    from svrpo.experiments.specs import report_order
 
     paths = [Path(p) for p in args.run_dirs]
     for path in paths:
@@ -67,7 +68,9 @@ def run(args: argparse.Namespace, extra: list[str]) -> int:
     for (experiment, scale), run_dirs in sorted(experiments.items()):
         out_dir = Path(args.report_dir) / f"{experiment}-{scale}" if args.report_dir else \
             default_report_dir(run_dirs)
-        for written in write_report(experiment, scale, run_dirs, out_dir, smoothing=args.smooth):
+        tasks, presets = report_order(experiment)
+        for written in write_report(experiment, scale, run_dirs, out_dir, smoothing=args.smooth,
+                                    task_order=tasks, preset_order=presets):
             print(f"wrote {written}")
     if plain:
         if args.out:

@@ -97,6 +97,13 @@ NAMED_EXPERIMENTS: dict[str, ExperimentSpec] = {
 }
 
 
+def report_order(experiment: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(tasks, presets): the order of a report's panels and curves (svrpo.analysis.report), the
+    named experiment's; any other experiment's panels in the paper's task order."""
+    spec = NAMED_EXPERIMENTS.get(experiment)
+    return (spec.tasks, spec.presets) if spec else (PAPER_TASKS, ())
+
+
 def load_spec(name_or_path: str) -> ExperimentSpec:
     """A named experiment (figure1, figure2, figure3) or a YAML file; SpecError otherwise."""
     if name_or_path in NAMED_EXPERIMENTS:

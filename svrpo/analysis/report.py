@@ -1,5 +1,7 @@
 """Per-experiment reports from sweep run directories: the paper-style figure, the variance
-panel and the table (markdown and CSV). Reads run directories only."""
+panel and the table (markdown and CSV). Reads run directories only; the order of the panels
+and curves (a named experiment's tasks and presets) is the caller's (svrpo.cli.plot), since
+the experiments' definitions sit a layer above."""
 
 from __future__ import annotations
 
@@ -11,9 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from svrpo.analysis.plotting import RunCurve, load_curve, plot_panels
 from svrpo.analysis.aggregate import aggregate_report, write_aggregate
-from svrpo.experiments.specs import NAMED_EXPERIMENTS, PAPER_TASKS
+from svrpo.analysis.plotting import RunCurve, load_curve, plot_panels
 from svrpo.analysis.table import summarize, write_csv, write_markdown
 
 REPORT_FILES = ("returns.png", "variance_ratio.png", "estimator_error_ratio.png", "table.md", "table.csv",
@@ -46,10 +47,18 @@ def default_report_dir(run_dirs: Sequence[Path]) -> Path:
 
 
 def write_report(experiment: str, scale: str, run_dirs: Sequence[Path], out_dir: Path,
-                 smoothing: int = 1) -> list[Path]:
-    """returns.png, variance_ratio.png (if any run logged the probe), table.md, table.csv."""
-    returns = _nested([load_curve(d, "average_return") for d in run_dirs], experiment)
-    variance = _nested([load_curve(d, "variance_ratio") for d in run_dirs], experiment)
+                 smoothing: int = 1, task_order: Sequence[str] = (),
+                 preset_order: Sequence[str] = ()) -> list[Path]:
+    """returns.png, variance_ratio.png (if any run logged the probe), table.md, table.csv.
+
+    task_order, preset_order: the panels' and the curves' order (tasks and presets not listed
+    follow, sorted, TRPO last among the presets)."""
+
+    def nested(curves: Sequence[RunCurve]) -> Nested:
+        return _nested(curves, task_order, preset_order)
+
+    returns = nested([load_curve(d, "average_return") for d in run_dirs])
+    variance = nested([load_curve(d, "variance_ratio") for d in run_dirs])
     title = f"{experiment} ({scale} scale)"
     written = [plot_panels(returns, out_dir / "returns.png", "average return (training episodes)",
                            smoothing, title=title)]
@@ -62,16 +71,16 @@ def write_report(experiment: str, scale: str, run_dirs: Sequence[Path], out_dir:
     # Each run's own estimator against SGD (a recursion's mean squared error, e.g. SARAH's; for
     # SVRG the same as above): drawn only for experiments with a path-dependent estimator.
     if any(_path_dependent(d) for d in run_dirs):
-        own = _nested([load_curve(d, "estimator_variance_ratio") for d in run_dirs], experiment)
+        own = nested([load_curve(d, "estimator_variance_ratio") for d in run_dirs])
         own = {task: {p: r for p, r in presets.items() if _has_positive(r)} for task, presets in own.items()}
         own = {task: presets for task, presets in own.items() if presets}
         if own:
             written.append(plot_panels(own, out_dir / "estimator_error_ratio.png",
                                        "estimator error / SGD variance", x_axis="iteration",
                                        log_scale=True, title=title, reference=1.0))
-    evals = _nested([load_curve(d, "eval_return") for d in run_dirs], experiment)
-    wall = _nested([load_curve(d, "wall_time") for d in run_dirs], experiment)
-    cpu = _nested([_cpu_curve(d) for d in run_dirs], experiment)
+    evals = nested([load_curve(d, "eval_return") for d in run_dirs])
+    wall = nested([load_curve(d, "wall_time") for d in run_dirs])
+    cpu = nested([_cpu_curve(d) for d in run_dirs])
     rows = summarize(returns, variance, evals, wall, cpu)
     written.append(write_markdown(rows, out_dir / "table.md", f"{title}: final return and samples "
                                   "to reach TRPO's final return"))
@@ -89,16 +98,13 @@ def _cpu_curve(run_dir: Path) -> RunCurve:
                                + workers.values.astype(np.float64))
 
 
-def _nested(curves: Sequence[RunCurve], experiment: str) -> Nested:
-    """task -> preset -> curves by seed, in the named experiment's order (else sorted, TRPO last);
-    runs that logged no iteration are left out."""
+def _nested(curves: Sequence[RunCurve], task_order: Sequence[str], preset_order: Sequence[str]) -> Nested:
+    """task -> preset -> curves by seed, in the given order (the rest sorted, TRPO last); runs
+    that logged no iteration are left out."""
     groups: Nested = defaultdict(lambda: defaultdict(list))
     for curve in sorted(curves, key=lambda c: c.seed):
         if len(curve.env_steps):
             groups[curve.env_id][curve.label].append(curve)
-    spec = NAMED_EXPERIMENTS.get(experiment)
-    task_order = spec.tasks if spec else PAPER_TASKS
-    preset_order = spec.presets if spec else ()
 
     def task_key(task: str) -> tuple[int, str]:
         return (task_order.index(task) if task in task_order else len(task_order), task)
