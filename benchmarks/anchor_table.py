@@ -42,7 +42,7 @@ from scipy import stats
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from svrpo.analysis.table import final_window, t_interval  # noqa: E402
 from svrpo.rundir.completion import is_finished  # noqa: E402
-from svrpo.rundir.logging import read_progress  # noqa: E402
+from svrpo.rundir.progress_log import read_progress  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 DEFAULT_SB3 = "sb3_anchor_1M*.json"

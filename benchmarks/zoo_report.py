@@ -35,7 +35,7 @@ import anchor_table  # noqa: E402
 from svrpo.analysis.aggregate import probability_bootstrap  # noqa: E402
 from svrpo.analysis.table import t_interval  # noqa: E402
 from svrpo.rundir.completion import is_finished  # noqa: E402
-from svrpo.rundir.logging import read_progress  # noqa: E402
+from svrpo.rundir.progress_log import read_progress  # noqa: E402
 
 TASKS = ("Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
 ZOO, RAW = "zoo-trpo-zoo", "zoo-trpo-raw-rewards-zoo"

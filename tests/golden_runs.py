@@ -18,7 +18,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from svrpo.rundir.logging import WALL_CLOCK_COLUMNS
+from svrpo.rundir.progress_log import WALL_CLOCK_COLUMNS
 
 GOLDEN_FILE = Path(__file__).parent / "data" / "golden_progress.json"
 

@@ -15,7 +15,7 @@ import torch
 from svrpo.config import Config, coerce_field
 from svrpo.presets import make_preset
 from svrpo.rundir import checkpoint
-from svrpo.rundir.logging import WALL_CLOCK_COLUMNS
+from svrpo.rundir.progress_log import WALL_CLOCK_COLUMNS
 
 
 def progress_rows(run_dir: Path, complete_only: bool = False) -> list[dict[str, str]]:

@@ -16,7 +16,7 @@ def _script() -> ModuleType:
 
 
 def _rows(accepted: list[float], kl: list[float]) -> list[dict[str, float]]:
-    """Rows as svrpo.rundir.logging.read_progress returns them (an empty cell reads as nan)."""
+    """Rows as svrpo.rundir.progress_log.read_progress returns them (an empty cell reads as nan)."""
     return [{"inner_steps_accepted": a, "mean_kl": k} for a, k in zip(accepted, kl, strict=True)]
 
 

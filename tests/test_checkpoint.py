@@ -17,7 +17,7 @@ from svrpo.algorithm.run import build_run
 from svrpo.presets import make_preset
 from svrpo.rundir import checkpoint
 from svrpo.rundir.checkpoint import CheckpointError
-from svrpo.rundir.logging import RunLogger, read_progress, truncate_progress
+from svrpo.rundir.progress_log import RunLogger, read_progress, truncate_progress
 from tests.helpers import _tiny_train, progress_rows
 
 

@@ -1,4 +1,4 @@
-"""svrpo.rundir.logging's TensorBoard scalars: every progress.csv column a run writes is one
+"""svrpo.rundir.progress_log's TensorBoard scalars: every progress.csv column a run writes is one
 scalar in exactly one SB3-style namespace (rollout/, train/, time/, eval/), at step env_steps,
 with the value of its CSV cell; a column without a namespace fails here."""
 
@@ -12,7 +12,7 @@ import pytest
 
 import svrpo
 from svrpo.presets import make_preset
-from svrpo.rundir.logging import _NAMESPACE_COLUMNS, TENSORBOARD_NAMESPACES, tensorboard_tag
+from svrpo.rundir.progress_log import _NAMESPACE_COLUMNS, TENSORBOARD_NAMESPACES, tensorboard_tag
 
 STEP_COLUMN = "env_steps"
 """The x-axis of every scalar, not a scalar of its own."""

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from svrpo.rundir.logging import WALL_CLOCK_COLUMNS
+from svrpo.rundir.progress_log import WALL_CLOCK_COLUMNS
 from svrpo.sampling.batch_step import choose_stepper
 from svrpo.sampling.envs import make_env, scale_action
 from svrpo.sampling.restarting import RestartingSampler

@@ -57,7 +57,7 @@ def test_a_progress_write_that_fails_keeps_the_checkpoint_and_rows_before_it(
     exactly the rows of an undisturbed run."""
     import errno
 
-    from svrpo.rundir.logging import RunLogger
+    from svrpo.rundir.progress_log import RunLogger
 
     config = make_preset("trpo", ENV, "laptop").replace(total_steps=1000, batch_size=100, num_workers=0,
                                                          envs_per_worker=1, eval_every=0, checkpoint_every=2)

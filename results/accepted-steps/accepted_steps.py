@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from svrpo.rundir.logging import read_progress  # noqa: E402
+from svrpo.rundir.progress_log import read_progress  # noqa: E402
 
 PRESETS = ("svrpo", "svrpo-loglik", "trpo")
 

@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import anchor_table  # noqa: E402
 
 from svrpo.analysis.table import t_interval  # noqa: E402
-from svrpo.rundir.logging import read_progress  # noqa: E402
+from svrpo.rundir.progress_log import read_progress  # noqa: E402
 
 MEASURES = anchor_table.MEASURES
 RUN_STEPS = 1_001_472

@@ -32,7 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from svrpo.analysis.table import t_interval  # noqa: E402
-from svrpo.rundir.logging import read_progress  # noqa: E402
+from svrpo.rundir.progress_log import read_progress  # noqa: E402
 
 FIRST, LAST = 2, 48
 """Iterations averaged: the first carries process start-up, the 49th the final evaluation."""

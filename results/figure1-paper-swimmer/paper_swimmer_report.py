@@ -56,7 +56,7 @@ from svrpo.analysis.table import (  # noqa: E402
     summarize,
 )
 from svrpo.rundir.completion import is_finished  # noqa: E402
-from svrpo.rundir.logging import read_progress  # noqa: E402
+from svrpo.rundir.progress_log import read_progress  # noqa: E402
 
 TASK = "Swimmer-v5"
 PRESETS = ("svrpo", "svrpo-loglik", "trpo")

@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from a check
 from svrpo.analysis.plotting import load_curve, mean_and_ci  # noqa: E402
 from svrpo.analysis.table import smoothed_seeds  # noqa: E402
 from svrpo.rundir.completion import is_finished  # noqa: E402
-from svrpo.rundir.logging import read_progress  # noqa: E402
+from svrpo.rundir.progress_log import read_progress  # noqa: E402
 from svrpo.tools.bench import machine_info, update_breakdown  # noqa: E402
 
 RESULTS = Path(__file__).parent

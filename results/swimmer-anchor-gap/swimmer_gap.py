@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from svrpo.analysis.table import t_interval  # noqa: E402
-from svrpo.rundir.logging import read_progress  # noqa: E402
+from svrpo.rundir.progress_log import read_progress  # noqa: E402
 
 FIRST, LAST = 196, 245
 """Iterations of the window (1-based, inclusive): 400-500k steps at N = 2,048."""

@@ -20,7 +20,7 @@ from typing import Literal
 import numpy as np
 
 from svrpo.presets import PRESET_NAMES
-from svrpo.rundir.logging import read_progress
+from svrpo.rundir.progress_log import read_progress
 
 # The same preset keeps its colour in every figure (the paper draws SVRPO red, TRPO blue).
 _COLOR_CYCLE = ("tab:blue", "tab:red", "tab:orange", "tab:green", "tab:purple", "tab:brown",

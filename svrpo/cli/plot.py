@@ -15,7 +15,7 @@ def _readable_runs(run_dirs: list[Path]) -> tuple[list[Path], set[str]]:
     """The runs whose config.json and progress.csv parse, and the columns they have; each
     skipped run is named in one line (a half-written cell in one run must not stop the report).
     None readable: one UsageError line saying why (nothing is drawn)."""
-    from svrpo.rundir.logging import read_progress
+    from svrpo.rundir.progress_log import read_progress
 
     readable: list[Path] = []
     columns: set[str] = set()

@@ -20,7 +20,7 @@ from svrpo.config import Config
 from svrpo.errors import TrainingError
 from svrpo.rundir import checkpoint
 from svrpo.rundir.atomic import write_text_atomic
-from svrpo.rundir.logging import RunLogger, truncate_progress
+from svrpo.rundir.progress_log import RunLogger, truncate_progress
 from svrpo.rundir.run_files import claim_run_directory
 from svrpo.rundir.run_lock import exclusive_writer, record_holder
 from svrpo.rundir.run_record import write_config, write_meta

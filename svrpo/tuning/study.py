@@ -352,7 +352,7 @@ def _told_now(study: optuna.Study, on_told: Callable[[optuna.Study], None] | Non
 
 
 def _returns(spec: TuneSpec, work: _Trial, budget: int) -> dict[str, list[float]]:
-    from svrpo.rundir.logging import read_progress
+    from svrpo.rundir.progress_log import read_progress
 
     returns: dict[str, list[float]] = {}
     for task in spec.tasks:
@@ -398,7 +398,7 @@ def _train_to(spec: TuneSpec, active: list[_Trial], budget: int, backend: Backen
 def stage_total_steps(config: Config, run_dir: Path, budget: int) -> int | None:
     """total_steps that trains the run in `run_dir` as far as whole iterations fit in `budget`
     steps from where it stands, or None when not one more fits (or none ever: S > budget)."""
-    from svrpo.rundir.logging import read_progress
+    from svrpo.rundir.progress_log import read_progress
 
     per_iteration = config.steps_per_iteration
     done, steps = 0, 0

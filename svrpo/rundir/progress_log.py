@@ -41,7 +41,7 @@ def tensorboard_tag(column: str) -> str:
     """NAMESPACE/column for TensorBoard; KeyError for a column with no namespace yet."""
     if column not in TENSORBOARD_NAMESPACES:
         raise KeyError(f"progress.csv column {column!r} has no TensorBoard namespace: "
-                       "add it to svrpo.rundir.logging._NAMESPACE_COLUMNS")
+                       "add it to svrpo.rundir.progress_log._NAMESPACE_COLUMNS")
     return f"{TENSORBOARD_NAMESPACES[column]}/{column}"
 
 
