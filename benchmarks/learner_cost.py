@@ -37,7 +37,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
-from svrpo.algorithm.algorithm import _policy_inputs, run_iteration, snapshot_of, surrogate_batch  # noqa: E402
+from svrpo.algorithm.iteration import _policy_inputs, run_iteration, snapshot_of, surrogate_batch  # noqa: E402
 from svrpo.algorithm.parts import update_parts  # noqa: E402
 from svrpo.algorithm.run import build_run
 from svrpo.algorithm.update import update_policy  # noqa: E402

@@ -29,7 +29,7 @@ POINTS: list[tuple[int, tuple[int, ...]]] = [
 
 def one_point(batch_size: int, hidden: tuple[int, ...]) -> dict[str, Any]:
     """Warm-up iteration, then one timed iteration; peak RSS of this process."""
-    from svrpo.algorithm.algorithm import run_iteration
+    from svrpo.algorithm.iteration import run_iteration
     from svrpo.algorithm.run import build_run
     from svrpo.presets import make_preset
 

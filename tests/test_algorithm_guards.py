@@ -1,4 +1,4 @@
-"""svrpo.algorithm.algorithm's non-finite guards: a batch with NaN rewards skips its update, and an
+"""svrpo.algorithm.iteration's non-finite guards: a batch with NaN rewards skips its update, and an
 update that leaves the policy or baseline non-finite is undone; both keep the parameters and count."""
 
 from __future__ import annotations

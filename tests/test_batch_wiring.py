@@ -1,4 +1,4 @@
-"""How algorithm.surrogate_batch turns a sampled Batch into the update's inputs, pinned by hand.
+"""How iteration.surrogate_batch turns a sampled Batch into the update's inputs, pinned by hand.
 
 surrogate_batch(run, batch) -> (SurrogateBatch, value targets, V(s_t)) is the seam between the
 sampler and the learner. Its mistakes are quiet: a batch cut treated as a termination, a
@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 import torch
 
-from svrpo.algorithm import algorithm
+from svrpo.algorithm import iteration
 from svrpo.algorithm.objectives import SurrogateBatch
 from svrpo.algorithm.run import build_run
 from svrpo.config import Config
@@ -151,7 +151,7 @@ def _population_standardised(values: list[float]) -> list[float]:
 
 def test_gae_advantages_targets_and_values_match_hand_computation() -> None:
     run = _run(normalize_advantages=False)
-    data, targets, values = algorithm.surrogate_batch(run, _hand_batch())  # type: ignore[arg-type]
+    data, targets, values = iteration.surrogate_batch(run, _hand_batch())  # type: ignore[arg-type]
     # V(s_t) of every row: catches values predicted on the wrong rows or the wrong timesteps.
     _close(values, VALUES)
     # Catches, row by row (see the table): a batch cut (rows 3, 6, 8) or a time limit (row 5)
@@ -169,7 +169,7 @@ def test_bootstrap_values_come_from_next_observations_at_t_plus_one() -> None:
     """The baseline is asked for V at next_observations[t], timestep t + 1, on exactly the truncated
     and segment-end rows (never on the terminated one)."""
     run = _run()
-    algorithm.surrogate_batch(run, _hand_batch())  # type: ignore[arg-type]
+    iteration.surrogate_batch(run, _hand_batch())  # type: ignore[arg-type]
     asked = {(float(o[0]), int(t)) for inputs, steps in run.baseline.calls
              for o, t in zip(inputs, steps, strict=True)}
     # Catches bootstrap inputs taken at t (7, 1), from the next row, or for the terminated row (50, 5).
@@ -180,7 +180,7 @@ def test_bootstrap_values_come_from_next_observations_at_t_plus_one() -> None:
 
 def test_value_targets_are_raw_advantages_plus_values_when_standardising() -> None:
     run = _run(normalize_advantages=True)
-    data, targets, values = algorithm.surrogate_batch(run, _hand_batch())  # type: ignore[arg-type]
+    data, targets, values = iteration.surrogate_batch(run, _hand_batch())  # type: ignore[arg-type]
     # Catches targets built after standardisation: those would be standardised A + V, e.g.
     # row 0 would be 5 + (-2.75 - mean) / std ~ 4.6 instead of 2.25.
     _close(targets, TARGETS)
@@ -190,7 +190,7 @@ def test_value_targets_are_raw_advantages_plus_values_when_standardising() -> No
 
 
 def test_surrogate_advantages_are_standardised_over_the_batch_with_population_std() -> None:
-    data, _, _ = algorithm.surrogate_batch(_run(normalize_advantages=True), _hand_batch())  # type: ignore[arg-type]
+    data, _, _ = iteration.surrogate_batch(_run(normalize_advantages=True), _hand_batch())  # type: ignore[arg-type]
     expected = _population_standardised(RAW_ADVANTAGES)
     # Catches no standardisation, centring only, the unbiased (n - 1) std (a factor sqrt(9/8)
     # here), or standardising per env / per segment instead of over the whole batch.
@@ -198,7 +198,7 @@ def test_surrogate_advantages_are_standardised_over_the_batch_with_population_st
     assert abs(float(data.advantages.double().mean())) < 1e-6
     assert float(data.advantages.double().std(unbiased=False)) == pytest.approx(1.0, abs=1e-6)
     # normalize_advantages=False hands the raw advantages over (catches standardising regardless).
-    raw, _, _ = algorithm.surrogate_batch(_run(normalize_advantages=False), _hand_batch())  # type: ignore[arg-type]
+    raw, _, _ = iteration.surrogate_batch(_run(normalize_advantages=False), _hand_batch())  # type: ignore[arg-type]
     _close(raw.advantages, RAW_ADVANTAGES)
 
 
@@ -242,7 +242,7 @@ def _check_record(data: SurrogateBatch, run: types.SimpleNamespace, batch: Batch
 def test_old_policy_record_without_normaliser() -> None:
     run = _run()
     batch = _hand_batch()
-    data, _, _ = algorithm.surrogate_batch(run, batch)  # type: ignore[arg-type]
+    data, _, _ = iteration.surrogate_batch(run, batch)  # type: ignore[arg-type]
     _check_record(data, run, batch, batch.observations)
 
 
@@ -255,7 +255,7 @@ def test_normaliser_feeds_normalised_observations_to_policy_and_baseline() -> No
     # both V(s_t) and the bootstrap V(s_{t+1}) were given normalised inputs.
     run = _run(normalizer=normalizer, baseline=StubBaseline(mean=1.0, std=std))
     batch = _hand_batch()
-    data, targets, values = algorithm.surrogate_batch(run, batch)  # type: ignore[arg-type]
+    data, targets, values = iteration.surrogate_batch(run, batch)  # type: ignore[arg-type]
     expected_inputs = torch.tensor([[(o - 1.0) / std] for o in OBS], dtype=torch.float64).float()
     # Catches raw observations given to the policy record or to the update (item 4 on normalised inputs).
     _check_record(data, run, batch, expected_inputs)
@@ -334,7 +334,7 @@ def recorded_run() -> dict[str, Any]:
             starts.append(copy.deepcopy({"normalizer": run.normalizer, "baseline": recorder.inner,
                                          "policy": run.policy}))
             event_marks.append(len(recorder.events))
-            rows.append(algorithm.run_iteration(run).progress_row())
+            rows.append(iteration.run_iteration(run).progress_row())
         event_marks.append(len(recorder.events))
     finally:
         run.sampler.close()
@@ -382,7 +382,7 @@ def test_logged_explained_variance_is_of_the_values_the_advantages_used(
     for k, (row, batch) in enumerate(zip(rows, batches, strict=True)):
         start = recorded_run["starts"][k]
         state = types.SimpleNamespace(config=config, **copy.deepcopy(start))
-        _, targets, values = algorithm.surrogate_batch(state, batch)  # type: ignore[arg-type]
+        _, targets, values = iteration.surrogate_batch(state, batch)  # type: ignore[arg-type]
         y, v = targets.double().numpy(), values.double().numpy()
         expected = 1.0 - np.var(y - v) / np.var(y)
         # Catches the explained variance of the refitted baseline, or one measured on inputs in

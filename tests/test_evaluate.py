@@ -18,7 +18,7 @@ from svrpo.presets import make_preset
 from svrpo.rundir.training import train
 from tests.helpers import _tiny_train
 
-EVAL_SEED_OFFSET = 1_000_003  # algorithm.run_iteration evaluates with seed config.seed + this
+EVAL_SEED_OFFSET = 1_000_003  # iteration.run_iteration evaluates with seed config.seed + this
 
 
 @pytest.fixture(scope="module", params=[False, True], ids=["raw", "normalized"])

@@ -22,7 +22,6 @@ import torch
 from torch import nn
 
 import svrpo
-from svrpo.algorithm.algorithm import run_iteration
 from svrpo.algorithm.estimators import ESTIMATORS
 from svrpo.algorithm.fresh.base import FreshEstimator, FreshGradientEstimator
 from svrpo.algorithm.fresh.gradients import FreshGradients, importance_weights
@@ -30,6 +29,7 @@ from svrpo.algorithm.fresh.sgd import FreshMinibatchGradient
 from svrpo.algorithm.fresh.srvrpg import SrvrpgGradient, srvrpg_gradient
 from svrpo.algorithm.fresh.stormpg import StormPgGradient, stormpg_gradient
 from svrpo.algorithm.fresh.svrpg import SvrpgGradient, svrpg_gradient
+from svrpo.algorithm.iteration import run_iteration
 from svrpo.algorithm.objectives import SurrogateBatch
 from svrpo.algorithm.run import build_run
 from svrpo.algorithm.streams import RandomStreams
@@ -398,7 +398,7 @@ def test_every_accepted_fresh_step_is_inside_both_balls_on_its_fresh_states() ->
 def test_a_fresh_batch_keeps_the_behaviour_policy_the_sampling_policy_and_the_snapshot_scale() -> None:
     """fresh_surrogate_batch: old_log_prob is the live policy's (w_j), old_mean the sampling
     policy's (w~), advantages standardised with the snapshot batch's mean and std."""
-    from svrpo.algorithm.algorithm import (
+    from svrpo.algorithm.iteration import (
         _raw_advantages,
         advantage_scale,
         fresh_surrogate_batch,

@@ -236,9 +236,9 @@ def test_observing_the_loop_does_not_change_it() -> None:
 
 def test_batches_are_read_in_the_checkpoints_reward_scale() -> None:
     """With normalize_rewards, every batch the tool draws is scaled as training scales it
-    (algorithm.sample), from the checkpoint's reward statistics each time: a large reference batch
+    (iteration.sample), from the checkpoint's reward statistics each time: a large reference batch
     must not move the scale the ordinary batch is read in."""
-    from svrpo.algorithm.algorithm import sample
+    from svrpo.algorithm.iteration import sample
     from svrpo.algorithm.run import build_run
     from svrpo.analysis.gradient_error import sample_frozen
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from svrpo.algorithm.algorithm import sample
+from svrpo.algorithm.iteration import sample
 from svrpo.algorithm.run import build_run
 from svrpo.models.normalization import RewardNormalizer
 from svrpo.presets import make_preset
@@ -82,7 +82,7 @@ def test_a_non_finite_reward_leaves_the_statistics_unchanged() -> None:
 
 
 def test_a_run_with_normalize_rewards_scales_every_sampled_batch_as_vecnormalize() -> None:
-    """build_run + algorithm.sample (the training loop's sampling): the scaled rewards of two
+    """build_run + iteration.sample (the training loop's sampling): the scaled rewards of two
     consecutive batches are the transcription's on the raw rewards of the same steps, which a
     run without the field samples (same seed, same policy: sampling never reads rewards)."""
     config = make_preset("trpo", "Hopper-v5", "zoo").replace(batch_size=200, total_steps=400, eval_every=0)

@@ -14,12 +14,12 @@ import pytest
 import torch
 
 import svrpo
-from svrpo.algorithm.algorithm import run_iteration
 from svrpo.algorithm.estimators import ESTIMATORS, SvrgGradient
 from svrpo.algorithm.fresh.base import FreshEstimator
 from svrpo.algorithm.fresh.gradients import FreshGradients
 from svrpo.algorithm.fresh.svrpg import SvrpgGradient
 from svrpo.algorithm.gradients import BatchGradients
+from svrpo.algorithm.iteration import run_iteration
 from svrpo.algorithm.run import build_run
 from svrpo.algorithm.step_rows import FreshDraws, SnapshotMinibatches, step_rows_for
 from svrpo.algorithm.streams import RandomStreams

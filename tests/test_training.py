@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from svrpo.algorithm.algorithm import surrogate_batch
+from svrpo.algorithm.iteration import surrogate_batch
 from svrpo.algorithm.objectives import mean_kl_from
 from svrpo.algorithm.parts import update_parts
 from svrpo.algorithm.run import build_run

@@ -9,7 +9,7 @@ import math
 import pytest
 import torch
 
-from svrpo.algorithm import algorithm, update
+from svrpo.algorithm import iteration, update
 from svrpo.algorithm.estimators import SvrgGradient
 from svrpo.algorithm.run import build_run
 from svrpo.models.parameters import flat_parameters
@@ -24,10 +24,10 @@ def test_inner_steps_with_bad_curvature_or_gradient_are_skipped_counted_and_chan
     config = _numerics_config(ENV).replace(total_steps=1000)
     run = build_run(config)
     try:
-        batch = run.sampler.sample(algorithm.snapshot_of(run), config.batch_size)
+        batch = run.sampler.sample(iteration.snapshot_of(run), config.batch_size)
     finally:
         run.sampler.close()
-    data, _, _ = algorithm.surrogate_batch(run, batch)
+    data, _, _ = iteration.surrogate_batch(run, batch)
     parts = run.parts
     if fault == "nan gradient":
         nan_gradient = torch.full_like(flat_parameters(run.policy), math.nan)

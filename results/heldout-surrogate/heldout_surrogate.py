@@ -48,7 +48,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from svrpo.algorithm.algorithm import snapshot_of, surrogate_batch  # noqa: E402
+from svrpo.algorithm.iteration import snapshot_of, surrogate_batch  # noqa: E402
 from svrpo.algorithm.objectives import SurrogateBatch, mean_kl_from, surrogate  # noqa: E402
 from svrpo.algorithm.parts import update_parts  # noqa: E402
 from svrpo.algorithm.run import build_run

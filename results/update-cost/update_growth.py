@@ -39,12 +39,12 @@ MODES = ("default", "keep")
 
 def _set_mode(mode: str) -> None:
     """"default": training's keep_freed_memory call does nothing (glibc's own thresholds)."""
-    import svrpo.algorithm.algorithm
+    import svrpo.algorithm.iteration
 
     if mode == "default":
-        svrpo.algorithm.algorithm.keep_freed_memory = lambda *args, **kwargs: False  # type: ignore[assignment]
+        svrpo.algorithm.iteration.keep_freed_memory = lambda *args, **kwargs: False  # type: ignore[assignment]
     else:
-        svrpo.algorithm.algorithm.keep_freed_memory()
+        svrpo.algorithm.iteration.keep_freed_memory()
 
 
 def one_update(batch_size: int) -> dict[str, Any]:

@@ -32,7 +32,7 @@ from svrpo.models.policy import GaussianMlpPolicy
 DrawWithIterate = Callable[[int], SurrogateBatch]
 """num_steps -> that many steps sampled with the policy's current parameters w_j, prepared as a
 SurrogateBatch whose old_log_prob is the behaviour policy's (w_j) and old_mean / old_log_std the
-sampling policy pi_{w~}'s (svrpo.algorithm.algorithm.fresh_surrogate_batch)."""
+sampling policy pi_{w~}'s (svrpo.algorithm.iteration.fresh_surrogate_batch)."""
 
 
 def draw_rows(count: int, size: int, generator: torch.Generator) -> torch.Tensor:
@@ -102,7 +102,7 @@ class FreshDraws:
                  draw: DrawWithIterate | None) -> None:
         if draw is None:
             raise ValueError(f"{type(estimator).__name__} draws fresh steps with the iterate: "
-                             "update_policy needs draw= (svrpo.algorithm.algorithm passes it)")
+                             "update_policy needs draw= (svrpo.algorithm.iteration passes it)")
         self.estimator, self.policy, self.batch, self.draw = estimator, policy, batch, draw
         self.snapshot_gradient = gradients.snapshot_full
         self.draw_size, self.clip = draw_size, importance_weight_clip

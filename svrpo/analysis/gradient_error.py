@@ -312,10 +312,10 @@ def replay_configs(saved: Config, estimators: Sequence[str], update_from: Sequen
 
 
 def sample_frozen(run: Run, num_steps: int) -> Batch:
-    """num_steps steps with the current policy, rewards scaled as in training (algorithm.sample:
+    """num_steps steps with the current policy, rewards scaled as in training (iteration.sample:
     normalize_rewards), but from the checkpoint's reward statistics every time: the measurement
     must not let a large reference batch move the scale the ordinary batch is read in."""
-    from svrpo.algorithm.algorithm import sample
+    from svrpo.algorithm.iteration import sample
 
     saved = copy.deepcopy(run.reward_normalizer)
     batch = sample(run, num_steps)
@@ -350,7 +350,7 @@ def measure_gradient_error(
     """
     import time
 
-    from svrpo.algorithm.algorithm import advantage_scale, fresh_surrogate_batch, surrogate_batch
+    from svrpo.algorithm.iteration import advantage_scale, fresh_surrogate_batch, surrogate_batch
     from svrpo.algorithm.parts import update_parts
     from svrpo.algorithm.run import build_run
     from svrpo.algorithm.streams import RandomStreams

@@ -1,6 +1,6 @@
 """Training a run into its directory: config.json, progress.csv, TensorBoard, checkpoints.
 
-`train` owns the files; the iteration itself is algorithm.run_iteration. Whatever stops the
+`train` owns the files; the iteration itself is svrpo.algorithm.iteration.run_iteration. Whatever stops the
 loop (Ctrl-C, dying workers, a full disk, a bug), the last completed iteration is checkpointed,
 and a resume ends with the same progress.csv, row for row, as an uninterrupted run.
 """
@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from svrpo.algorithm.algorithm import run_iteration
 from svrpo.algorithm.estimators import GradientEstimator
+from svrpo.algorithm.iteration import run_iteration
 from svrpo.algorithm.run import Run, build_run
 from svrpo.config import Config
 from svrpo.errors import TrainingError

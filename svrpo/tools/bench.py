@@ -330,7 +330,7 @@ def update_breakdown(
     first, so the measured update is not the very first one. Also times the baseline fits
     (the preset's and an MLP value function with the config's defaults).
     """
-    from svrpo.algorithm.algorithm import run_iteration, snapshot_of, surrogate_batch
+    from svrpo.algorithm.iteration import run_iteration, snapshot_of, surrogate_batch
     from svrpo.algorithm.parts import update_parts
     from svrpo.algorithm.run import build_run
     from svrpo.algorithm.update import update_policy
@@ -411,7 +411,7 @@ def trained_snapshot(env_id: str, iterations: int, seed: int = 0) -> tuple[Polic
     "Trained" means only that: a policy that has moved away from the initial one (longer
     episodes, different states), not a converged one. Returns the snapshot and its record.
     """
-    from svrpo.algorithm.algorithm import run_iteration, snapshot_of
+    from svrpo.algorithm.iteration import run_iteration, snapshot_of
     from svrpo.algorithm.run import build_run
     from svrpo.presets import make_preset
 
