@@ -457,7 +457,6 @@ def test_the_budget_is_also_held_on_the_snapshot_states() -> None:
     """A fresh step's trial within the budget on its fresh states but not on the N snapshot
     states is rejected (KL = inf, counted); with room on both it is judged as before. The
     iterate anchor has no budget and is not checked."""
-    from svrpo.algorithm.fresh.loop import FreshBatchEvaluator
     from svrpo.algorithm.objectives import old_log_prob
     from svrpo.algorithm.trust_region.anchors import IterateAnchor, KlBound
     from svrpo.algorithm.update import FullBatchEvaluator
@@ -476,7 +475,7 @@ def test_the_budget_is_also_held_on_the_snapshot_states() -> None:
     with torch.no_grad():
         policy.mean_net[0].weight.add_(0.3)  # moves the mean far more on the wide snapshot states
     snapshot = FullBatchEvaluator(policy, snapshot_batch, "ratio")
-    fresh = FreshBatchEvaluator(policy, fresh_batch_, "ratio", snapshot)
+    fresh = FullBatchEvaluator(policy, fresh_batch_, "ratio", snapshot=snapshot)
     log_std = fresh_batch_.old_log_std.expand_as(fresh_batch_.old_mean)
     kl_fresh = fresh.kl(fresh_batch_.old_mean, log_std)
     snapshot_log_std = snapshot_batch.old_log_std.expand_as(snapshot_batch.old_mean)

@@ -4,10 +4,9 @@ STORM-PG, and their plain fresh-SGD twin), inside the trust region.
 
 * `gradients.py`  the per-decision importance weights and the gradients on one fresh batch;
 * `base.py`       what the four estimators share (the part lifecycle, the recorded path);
-* `svrpg.py`, `srvrpg.py`, `stormpg.py`, `sgd.py`: one estimator each;
-* `loop.py`       one name kept for an old import (the steps run in svrpo.algorithm.update, their
-                  rows come from svrpo.algorithm.step_rows.FreshDraws).
+* `svrpg.py`, `srvrpg.py`, `stormpg.py`, `sgd.py`: one estimator each.
 
-Torch only; nothing here but loop.py imports svrpo.algorithm.estimators (which registers these
-estimators).
+The steps run in the one inner loop (svrpo.algorithm.update.update_policy), their rows drawn by
+svrpo.algorithm.step_rows.FreshDraws. Torch only; nothing here imports svrpo.algorithm.estimators
+(which registers these estimators).
 """
