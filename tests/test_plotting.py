@@ -147,7 +147,8 @@ def test_report_table_matches_hand_computed_values(
 
 
 @pytest.mark.parametrize(("experiment", "tasks"), [("estimators", ["Hopper-v5", "Walker2d-v5"]),
-                                                   ("unnamed", ["Walker2d-v5", "Hopper-v5"])])
+                                                   ("unnamed", ["Walker2d-v5", "Hopper-v5"])],
+                         ids=["named", "unnamed"])
 def test_a_report_orders_its_tasks_as_the_named_experiment_else_as_the_paper(
         tmp_path: Path, experiment: str, tasks: list[str]) -> None:
     """`svrpo plot` hands the report its order: the named experiment's tasks (estimators: Hopper,
