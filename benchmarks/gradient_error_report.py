@@ -673,9 +673,11 @@ def plot_errors(raw: Raw, calls: Sequence[str], out: Path) -> Path | None:
         return None
     figure, axes = plt.subplots(len(POINTS), 2 * len(present), squeeze=False,
                                 figsize=(8.4 * len(present), 3.2 * len(POINTS)))
+    legends: set[str] = set()
     for row, point in enumerate(POINTS):
         for column, call in enumerate(present):
             true_axis, batch_axis = axes[row][2 * column], axes[row][2 * column + 1]
+            batch_axis.sharey(true_axis)  # one scale per pair: the two errors side by side
             cells = [cell for key, cell in raw.cells.items() if key[2] == point and key[3] == call]
             for index, label in enumerate(CALL_LABELS[call]):
                 color = f"C{index}"
@@ -699,10 +701,12 @@ def plot_errors(raw: Raw, calls: Sequence[str], out: Path) -> Path | None:
                     axis.set_xlabel("inner step j")
             if column == 0:
                 true_axis.set_ylabel("relative error (geometric mean)")
-            if row == 0:
-                batch_axis.legend(fontsize=7)
-    figure.suptitle("Error of each inner step's gradient against the true gradient G (left of each pair; "
-                    "dashed: the batch's own at w~) and against the batch gradient gb (right)", fontsize=11)
+            if true_axis.lines and call not in legends:
+                legends.add(call)
+                true_axis.legend(fontsize=7)
+    figure.suptitle("Each inner step's gradient g_j: ||g_j - G_j|| / ||G_j|| against the true gradient (left "
+                    "of each pair;\ndashed: the batch's own ||gb - G|| / ||G|| at w~) and ||g_j - gb_j|| / "
+                    "||gb_j|| against the batch gradient (right)", fontsize=10)
     figure.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(out, dpi=90)
