@@ -532,6 +532,12 @@ def report_lines(raw: Raw, stats: Sequence[PolicyStat], scales: Sequence[PolicyS
                 per_task = summaries((s for s in stats if s.point == point and s.task == task), calls)
                 lines += [f"### {task}, {point}%", "", *estimator_table(per_task), ""]
 
+    lines += ["## Figures", "",
+              "gradient_error.png (calls A and B), gradient_error_all.png (A-all, B-all), "
+              "gradient_error_paper_n.png (N50000): one row per training point; per call, "
+              "||g_j - G_j|| / ||G_j|| (left; dashed: the batch's own ||gb - G|| / ||G|| at w~) beside "
+              "||g_j - gb_j|| / ||gb_j|| (right) against the inner step j, per estimator, geometric mean "
+              "over the policies that reached j (a later j can hold fewer policies).", ""]
     lines += q3_section(scales, readings)
     lines += q4_section(stats, readings)
     lines += ["## Readings (section 8, applied mechanically)", ""]
@@ -543,13 +549,18 @@ def report_lines(raw: Raw, stats: Sequence[PolicyStat], scales: Sequence[PolicyS
 def q3_section(scales: Sequence[PolicyScale], readings: dict[str, list[str]]) -> list[str]:
     """B_simple per task and point (N = 2,048 calls: call A's summary, else the first call read),
     and the sampling-error check per point."""
+    small = first_per_policy([s for s in scales if s.call != PAPER_CALL])
+    differing = sorted({f"{s.task} seed{s.seed} {s.point}% ({s.call}: {_number(s.b_simple)})"
+                        for s in scales for chosen in small if s.call != PAPER_CALL
+                        and (s.task, s.seed, s.point) == (chosen.task, chosen.seed, chosen.point)
+                        and not math.isclose(s.log10_b_simple, chosen.log10_b_simple, rel_tol=1e-9)})
     lines = ["## B_simple against N = 2,048 (seed mean of log10 B_simple, t interval)", "",
              "One summary per policy: call A's, else B's, A-all's, B-all's (every N = 2,048 call at a "
              "policy draws the same reference). `> M`: |G|^2's estimate <= 0, counted as log10 M "
-             "(the mean is then a lower bound, marked >=).", "",
+             "(the mean is then a lower bound, marked >=). N = 2,048 calls whose B_simple differs from "
+             f"the one used: {', '.join(differing) if differing else 'none'}.", "",
              "| task | point | n | log10 B_simple | B_simple (10^mean) | seeds > M | per seed | reading |",
              "|---|---|---|---|---|---|---|---|"]
-    small = first_per_policy([s for s in scales if s.call != PAPER_CALL])
     for task in TASKS:
         for point in POINTS:
             group = [s for s in small if s.task == task and s.point == point]
@@ -566,14 +577,17 @@ def q3_section(scales: Sequence[PolicyScale], readings: dict[str, list[str]]) ->
                          f"{f' ({flags} flagged)' if flags else ''} | {reading} |")
             readings["Q3"].append(f"* {task}, {point}%: **{reading}** (log10 B_simple {bound}{text})")
     lines += ["", "### ||gb - G||^2 at w~ against tr(Sigma) / N (per point, over its policies)", "",
-              "| point | n | mean ratio | min | max | check [0.5, 2] |", "|---|---|---|---|---|---|"]
+              "| point | n | mean ratio | min | max | flagged | check [0.5, 2] |",
+              "|---|---|---|---|---|---|---|"]
     for point in POINTS:
-        ratios = [s.sampling_ratio for s in small if s.point == point and math.isfinite(s.sampling_ratio)]
+        group = [s for s in small if s.point == point and math.isfinite(s.sampling_ratio)]
+        ratios = [s.sampling_ratio for s in group]
         mean = float(np.mean(ratios)) if ratios else math.nan
         check = sampling_check(mean)
         lines.append(f"| {point}% | {len(ratios)} | {_number(mean)} | "
                      f"{_number(min(ratios)) if ratios else 'n/a'} | "
-                     f"{_number(max(ratios)) if ratios else 'n/a'} | {check} |")
+                     f"{_number(max(ratios)) if ratios else 'n/a'} | "
+                     f"{sum(s.reference_flagged for s in group)} | {check} |")
         readings["Q3"].append(f"* {point}%: ||gb - G||^2 / (tr(Sigma) / N) mean {_number(mean)}: "
                               f"**{check}**")
     paper = [s for s in scales if s.call == PAPER_CALL]
@@ -603,19 +617,20 @@ def q4_section(stats: Sequence[PolicyStat], readings: dict[str, list[str]]) -> l
     lines = [f"## N = 50,000 ({PAPER_TASK})", "",
              "Paired difference over the Hopper policies of the sampling share at N = 50,000 (call "
              "N50000) minus at N = 2,048 (call A):", "",
-             "| estimator | n pairs | share difference | reading |", "|---|---|---|---|"]
+             "| estimator | n pairs | share difference | flagged | reading |", "|---|---|---|---|---|"]
     index = {(s.task, s.seed, s.point, s.call, s.estimator): s for s in stats}
     for estimator in ("svrg", "sgd"):
-        differences = []
+        differences, flagged = [], 0
         for seed in SEEDS:
             for point in POINTS:
                 large = index.get((PAPER_TASK, seed, point, PAPER_CALL, estimator))
                 small = index.get((PAPER_TASK, seed, point, "A", estimator))
                 if large and small:
                     differences.append(large.sampling_share - small.sampling_share)
+                    flagged += large.reference_flagged or small.reference_flagged
         value = interval(differences)
         reading = balance_reading(value)
-        lines.append(f"| {estimator} | {value.n} | {share_text(value)} | {reading} |")
+        lines.append(f"| {estimator} | {value.n} | {share_text(value)} | {flagged} | {reading} |")
         readings["Q4"].append(f"* {estimator}: share(N = 50,000) - share(N = 2,048) = {share_text(value)} "
                               f"over {value.n} policies: **{reading}**")
     lines.append("")
