@@ -121,6 +121,8 @@ class Raw:
     """RAW-relative paths of expected calls with no readable steps.csv and summary.json."""
     missing_replays: list[str]
     """'path: label' for an expected label absent from a present call's steps.csv."""
+    unexpected: list[str]
+    """RAW-relative folders holding a steps.csv that are not protocol calls (not read)."""
 
 
 def expected_cells() -> Iterator[tuple[str, int, str, str]]:
@@ -158,7 +160,10 @@ def read_raw(root: Path) -> Raw:
             continue
         cells[task, seed, point, call] = Cell(task, seed, point, call, rows, summary)
         missing_replays += [f"{relative}: {label}" for label in CALL_LABELS[call] if label not in rows]
-    return Raw(cells, missing, missing_replays)
+    known = {f"{task}/seed{seed}/{point}/{call}" for task, seed, point, call in expected_cells()}
+    unexpected = sorted(str(path.parent.relative_to(root)) for path in root.rglob("steps.csv")
+                        if str(path.parent.relative_to(root)) not in known)
+    return Raw(cells, missing, missing_replays, unexpected)
 
 
 def sampling_share(steps: Mapping[int, Mapping[str, float]], vector: str = "gradient") -> float:
@@ -269,13 +274,14 @@ def policy_stats(cell: Cell) -> list[PolicyStat]:
                   twin_steps: Mapping[int, Mapping[str, float]] = twin_steps) -> float:
             return log_ratio(steps, twin_steps, column) if twin_steps else math.nan
 
-        cosines = [row["direction_total_cosine"] for row in steps.values()]
+        cosines = [row["direction_total_cosine"] for row in steps.values()
+                   if math.isfinite(row["direction_total_cosine"])]  # nan where a direction is 0
         out.append(PolicyStat(
             cell.task, cell.seed, cell.point, cell.call, label, twin, len(steps),
             len(paired_steps(steps, twin_steps)), sampling_share(steps),
             ratio("gradient_total_squared"), ratio("gradient_noise_squared"),
             sampling_share(steps, "direction"), ratio("direction_total_squared"),
-            ratio("direction_noise_squared"), float(np.nanmean(cosines)) if cosines else math.nan,
+            ratio("direction_noise_squared"), float(np.mean(cosines)) if cosines else math.nan,
             flagged))
     return out
 
@@ -506,7 +512,9 @@ def report_lines(raw: Raw, stats: Sequence[PolicyStat], scales: Sequence[PolicyS
              f"{len(raw.cells)} of {expected} calls read. Missing calls ({len(raw.missing_cells)}): "
              + (", ".join(raw.missing_cells) if raw.missing_cells else "none") + ".", "",
              f"Missing replays in present calls ({len(raw.missing_replays)}): "
-             + (", ".join(raw.missing_replays) if raw.missing_replays else "none") + ".", ""]
+             + (", ".join(raw.missing_replays) if raw.missing_replays else "none") + ".", "",
+             f"Folders with a steps.csv that are not protocol calls, not read ({len(raw.unexpected)}): "
+             + (", ".join(raw.unexpected) if raw.unexpected else "none") + ".", ""]
     flagged = flagged_list([*stats, *scales])
     lines += [f"Flagged policies ({len(flagged)}): " + (", ".join(flagged) if flagged else "none") + ".", ""]
     unpaired = sorted({f"{s.task} seed{s.seed} {s.point}% {s.call}: {s.estimator}" for s in stats

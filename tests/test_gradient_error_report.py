@@ -277,12 +277,14 @@ def test_missing_cells_replays_unpaired_steps_and_flags_are_listed(tmp_path: Pat
         step("sgd", 0, 1.0, 0.5, 0.5), step("sgd", 1, 1.0, 0.5, 0.5), step("svrg", 0, 1.0, 0.0, 1.0),
         step("full", 0, 1.0, 0.0, 1.0, reference_se=1.0)])
     (raw / "Walker2d-v5" / "seed1" / "50" / "B").mkdir(parents=True)  # started, nothing written yet
+    write_cell(raw, "Hopper-v5", 0, "50%", "A", [step("sgd", 0, 1.0, 0.5, 0.5)])  # not a protocol point
     data, policy, scales = _read(raw)
     assert len(data.cells) == 1 and len(data.missing_cells) == 155
     assert "Walker2d-v5/seed1/50/B (FileNotFoundError)" in data.missing_cells
     assert "Hopper-v5/seed2/100/N50000" in data.missing_cells
     assert "Walker2d-v5/seed0/0/N50000" not in data.missing_cells  # the paper's N on Hopper only
     assert data.missing_replays == [f"Hopper-v5/seed0/0/A: {label}" for label in ("sarah", "storm", "page")]
+    assert data.unexpected == ["Hopper-v5/seed0/50%/A"]
     text = "\n".join(report.report_lines(data, policy, scales))
     assert "Pairs with no common step j >= 1 (1): Hopper-v5 seed0 0% A: svrg." in text
     counted = {summary.estimator: summary for summary in report.summaries(policy, ("A",))}
@@ -310,3 +312,15 @@ def test_the_cli_writes_the_report_the_table_and_the_figures(tmp_path: Path) -> 
     assert float(svrg["log_r_true"]) == pytest.approx(0.0) and svrg["twin"] == "sgd"
     assert float(svrg["b_simple"]) == pytest.approx(1e4)
     assert "Missing calls (147)" in (out / "report.md").read_text()
+
+
+def test_a_direction_reading_that_differs_from_the_gradients_is_said() -> None:
+    log = math.log
+    buys, misses = iv(log(0.5), log(0.8)), iv(log(0.8), log(1.1))
+    batch = iv(log(0.3), log(0.5))
+    summary = report.Summary("svrg", "sgd", 9, iv(0.6, 0.7), buys, batch, iv(0.6, 0.7), misses, batch,
+                             iv(0.4, 0.5), 0, 0)
+    (line,) = report.q2_lines([summary])
+    assert "gradient: **buys accuracy**" in line
+    assert f"direction: **{report.NOT_WHERE_IT_MATTERS}**" in line
+    assert line.endswith("they disagree: the direction's reading is the one that moves the policy")
