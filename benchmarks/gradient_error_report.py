@@ -1,7 +1,7 @@
 """The gradient-error measurement's statistics and readings (results/gradient-error/PROTOCOL.md,
 sections 5 and 8), from the raw outputs of `svrpo gradient-error`.
 
-    python benchmarks/gradient_error_report.py RAW --out DIR
+    python benchmarks/gradient_error_report.py RAW --out DIR [--retrained-check FILE]
 
 RAW/<task>/seed<k>/<point>/<call>/{steps.csv,summary.json}: task in Hopper-v5, Walker2d-v5,
 HalfCheetah-v5; k in 0, 1, 2; point in 0, 25, 50, 100 (% of the 1M-step run); call in A, B, A-all,
@@ -106,6 +106,8 @@ class Cell:
     call: str
     rows: Rows
     summary: Mapping[str, Any]
+    cpu_seconds: float = math.nan
+    """user + system seconds of the call and its sampling worker (run.sh's time.txt; NaN if none)."""
 
     @property
     def policy(self) -> str:
@@ -145,6 +147,15 @@ def read_steps(path: Path) -> dict[str, dict[int, dict[str, float]]]:
     return rows
 
 
+def call_cpu_seconds(folder: Path) -> float:
+    """user + system seconds from run.sh's time.txt (`/usr/bin/time -f "%U %S %e"`); NaN if absent."""
+    try:
+        user, system = folder.joinpath("time.txt").read_text().split()[-3:-1]
+        return float(user) + float(system)
+    except (OSError, ValueError):
+        return math.nan
+
+
 def read_raw(root: Path) -> Raw:
     """Every expected call under `root` that has both files; the others listed as missing."""
     cells: dict[tuple[str, int, str, str], Cell] = {}
@@ -158,11 +169,13 @@ def read_raw(root: Path) -> Raw:
         except (OSError, ValueError, KeyError) as error:
             missing.append(f"{relative} ({type(error).__name__})" if folder.is_dir() else relative)
             continue
-        cells[task, seed, point, call] = Cell(task, seed, point, call, rows, summary)
+        cells[task, seed, point, call] = Cell(task, seed, point, call, rows, summary,
+                                              call_cpu_seconds(folder))
         missing_replays += [f"{relative}: {label}" for label in CALL_LABELS[call] if label not in rows]
     known = {f"{task}/seed{seed}/{point}/{call}" for task, seed, point, call in expected_cells()}
     unexpected = sorted(str(path.parent.relative_to(root)) for path in root.rglob("steps.csv")
-                        if str(path.parent.relative_to(root)) not in known)
+                        if str(path.parent.relative_to(root)) not in known
+                        and not path.parent.name.endswith(".tmp"))  # run.sh's call in progress
     return Raw(cells, missing, missing_replays, unexpected)
 
 
@@ -498,8 +511,20 @@ def _number(value: float) -> str:
     return f"{value:.3g}" if math.isfinite(value) else "inf"
 
 
-def report_lines(raw: Raw, stats: Sequence[PolicyStat], scales: Sequence[PolicyScale]) -> list[str]:
-    """report.md."""
+def retrained_differing(check: str) -> list[str]:
+    """'task seedK' of each re-trained 25% policy whose run differs from the archived run's first
+    rows, from check_retrained.py's output ('TASK seedK: equal (122 rows)' or the first difference)."""
+    differing = []
+    for line in check.splitlines():
+        policy, separator, verdict = line.partition(": ")
+        if separator and not verdict.startswith("equal"):
+            differing.append(policy)
+    return differing
+
+
+def report_lines(raw: Raw, stats: Sequence[PolicyStat], scales: Sequence[PolicyScale],
+                 retrained_check: str | None = None) -> list[str]:
+    """report.md (`retrained_check`: check_retrained.py's output on the 25% policies, if found)."""
     expected = sum(1 for _ in expected_cells())
     lines = ["# Gradient error along training: the protocol's statistics and readings", "",
              "Made by `python benchmarks/gradient_error_report.py RAW --out DIR` "
@@ -515,6 +540,24 @@ def report_lines(raw: Raw, stats: Sequence[PolicyStat], scales: Sequence[PolicyS
              + (", ".join(raw.missing_replays) if raw.missing_replays else "none") + ".", "",
              f"Folders with a steps.csv that are not protocol calls, not read ({len(raw.unexpected)}): "
              + (", ".join(raw.unexpected) if raw.unexpected else "none") + ".", ""]
+    if retrained_check is None:
+        lines += ["25% policies: no check_retrained.py output found (RAW/../policies/check.txt).", ""]
+    else:
+        differing = retrained_differing(retrained_check)
+        lines += ["25% policies (check_retrained.py against the archived runs' first 122 rows): "
+                  + (f"{len(differing)} differ, kept as policies of a real run and labelled re-trained: "
+                     + ", ".join(differing) if differing else "every re-trained run checked is equal")
+                  + ".", "", "```", retrained_check.strip(), "```", ""]
+    lines += ["CPU seconds per call (time.txt, user + system, the call and its sampling worker; "
+              "protocol section 7 estimated A 58, B 121, A-all 119, B-all 150, N50000 280):", "",
+              "| call | n | median | total |", "|---|---|---|---|"]
+    for call in CALLS:
+        seconds = [c.cpu_seconds for c in raw.cells.values()
+                   if c.call == call and math.isfinite(c.cpu_seconds)]
+        median = _number(float(np.median(seconds))) if seconds else "n/a"
+        total = _number(sum(seconds)) if seconds else "n/a"
+        lines.append(f"| {call} | {len(seconds)} | {median} | {total} |")
+    lines.append("")
     flagged = flagged_list([*stats, *scales])
     lines += [f"Flagged policies ({len(flagged)}): " + (", ".join(flagged) if flagged else "none") + ".", ""]
     unpaired = sorted({f"{s.task} seed{s.seed} {s.point}% {s.call}: {s.estimator}" for s in stats
@@ -757,13 +800,16 @@ def write_per_policy(stats: Sequence[PolicyStat], scales: Sequence[PolicyScale],
             writer.writerow([values[name] for name in names] + tail)
 
 
-def build_report(root: Path, out: Path) -> list[Path]:
-    """Read RAW, write report.md, per_policy.csv and the figures into `out`; the paths written."""
+def build_report(root: Path, out: Path, retrained_check: Path | None = None) -> list[Path]:
+    """Read RAW, write report.md, per_policy.csv and the figures into `out`; the paths written.
+    `retrained_check`: check_retrained.py's output (default RAW/../policies/check.txt, if there)."""
     raw = read_raw(root)
     stats = [stat for cell in raw.cells.values() for stat in policy_stats(cell)]
     scales = [policy_scale(cell) for cell in raw.cells.values()]
+    check = retrained_check or root.resolve().parent / "policies" / "check.txt"
+    check_text = check.read_text() if check.is_file() else None
     out.mkdir(parents=True, exist_ok=True)
-    (out / "report.md").write_text("\n".join(report_lines(raw, stats, scales)) + "\n")
+    (out / "report.md").write_text("\n".join(report_lines(raw, stats, scales, check_text)) + "\n")
     write_per_policy(stats, scales, out / "per_policy.csv")
     written = [out / "report.md", out / "per_policy.csv"]
     for calls, name in ((PRIMARY_CALLS, "gradient_error.png"), (SECONDARY_CALLS, "gradient_error_all.png"),
@@ -778,10 +824,12 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("raw", type=Path, help="RAW/<task>/seed<k>/<point>/<call>/")
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--retrained-check", type=Path, default=None,
+                        help="check_retrained.py's output (default RAW/../policies/check.txt)")
     args = parser.parse_args(argv)
     if not args.raw.is_dir():
         parser.error(f"{args.raw} is not a directory")
-    for path in build_report(args.raw, args.out):
+    for path in build_report(args.raw, args.out, args.retrained_check):
         print(f"wrote {path}")
 
 

@@ -300,6 +300,15 @@ def test_the_cli_writes_the_report_the_table_and_the_figures(tmp_path: Path) -> 
     raw, out = tmp_path / "raw", tmp_path / "out"
     populate(raw, "0", share=0.8, r_true=1.0, r_batch=0.5, calls=("A", "B", report.PAPER_CALL),
              tasks=("Hopper-v5",))
+    (tmp_path / "policies").mkdir()  # run.sh's ROOT/policies/check.txt beside ROOT/raw
+    (tmp_path / "policies" / "check.txt").write_text(
+        "HalfCheetah-v5 seed0: equal (122 rows)\n"
+        "Hopper-v5 seed1: iteration 7 column mean_kl: 0.0101 against 0.0102 (122 rows)\n"
+        "1 re-trained run(s) differ from the archived runs' first 122 rows\n")
+    for seed, seconds in enumerate(("50.0 8.0 300.1", "60.5 1.5 200.0", "40.0 2.0 100.0")):
+        (raw / "Hopper-v5" / f"seed{seed}" / "0" / "A" / "time.txt").write_text(seconds + "\n")
+    (raw / "Hopper-v5" / "seed0" / "25" / "A.tmp").mkdir(parents=True)  # a call in progress
+    (raw / "Hopper-v5" / "seed0" / "25" / "A.tmp" / "steps.csv").write_text("")
     done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "gradient_error_report.py"), str(raw),
                            "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
@@ -311,7 +320,10 @@ def test_the_cli_writes_the_report_the_table_and_the_figures(tmp_path: Path) -> 
     svrg = next(r for r in rows if r["estimator"] == "svrg" and r["call"] == "A" and r["seed"] == "1")
     assert float(svrg["log_r_true"]) == pytest.approx(0.0) and svrg["twin"] == "sgd"
     assert float(svrg["b_simple"]) == pytest.approx(1e4)
-    assert "Missing calls (147)" in (out / "report.md").read_text()
+    text = (out / "report.md").read_text()
+    assert "Missing calls (147)" in text and "not read (0)" in text
+    assert "| A | 3 | 58 | 162 |" in text and "| B | 0 | n/a | n/a |" in text
+    assert "1 differ, kept as policies of a real run and labelled re-trained: Hopper-v5 seed1." in text
 
 
 def test_a_direction_reading_that_differs_from_the_gradients_is_said() -> None:
