@@ -199,7 +199,7 @@ def populate(root: Path, point: str, share: float, r_true: float, r_batch: float
                 ratio_true, ratio_batch = (r_true * math.exp(e), r_batch * math.exp(e)) if label in twins \
                     else (1.0, 1.0)
                 part = (share_of or {}).get(label, share) + e
-                for j in range(3):
+                for j in range(1 if label == "full" else 3):  # full runs with J = 1, as TRPO
                     # j = 0: a value that would move every ratio if it were counted
                     total = 5.0 if j == 0 else ratio_true
                     steps.append(step(label, j, total, 5.0 if j == 0 else ratio_batch, part * total))
@@ -269,6 +269,10 @@ def test_q4_pairs_the_hopper_policies_across_n(tmp_path: Path) -> None:
     assert "* sgd: share(N = 50,000)" in q4
     assert "Hopper-v5, 0%, N = 50,000: svrg" not in q4  # share 0.5: the inner loop does not dominate
     assert "**none**" in q4
+    paper = text[text.index("### N = 50,000, 0%"):text.index("### N = 50,000, 25%")]
+    svrg_row = next(line for line in paper.splitlines() if line.startswith("| svrg |"))
+    assert svrg_row.startswith("| svrg | sgd | 3 | 0.500 [")  # share
+    assert svrg_row.split("|")[5].startswith(" 0.500 [")  # R_true against sgd
 
 
 def test_missing_cells_replays_unpaired_steps_and_flags_are_listed(tmp_path: Path) -> None:
@@ -317,6 +321,7 @@ def test_the_cli_writes_the_report_the_table_and_the_figures(tmp_path: Path) -> 
     with open(out / "per_policy.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     assert len(rows) == 3 * (6 + 7 + 3)
+    assert {r["steps_reached"] for r in rows if r["estimator"] == "full"} == {"1"}
     svrg = next(r for r in rows if r["estimator"] == "svrg" and r["call"] == "A" and r["seed"] == "1")
     assert float(svrg["log_r_true"]) == pytest.approx(0.0) and svrg["twin"] == "sgd"
     assert float(svrg["b_simple"]) == pytest.approx(1e4)
