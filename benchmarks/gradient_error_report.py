@@ -19,7 +19,7 @@ Per policy and replay (a `steps.csv` label), over the inner steps j the loop rea
 
 Across policies: per training point over the 9 policies (3 tasks x 3 seeds) and per task (n = 3),
 the mean of the share and of log R (natural log) with a Student-t 95% interval
-(svrpo.experiments.table.t_interval); R's tables show exp of the mean log and of its ends (a
+(svrpo.analysis.table.t_interval); R's tables show exp of the mean log and of its ends (a
 geometric mean). Per task and point, the seed mean of log10 B_simple with its t interval, a
 B_simple of inf (|G|^2's estimate <= 0) read as "> M" and counted as log10 M (a lower bound).
 A policy whose reference cannot resolve G (mean over the call's rows of
@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from svrpo.experiments.table import CONFIDENCE, t_interval  # noqa: E402
+from svrpo.analysis.table import CONFIDENCE, t_interval  # noqa: E402
 
 TASKS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5")
 SEEDS = (0, 1, 2)
