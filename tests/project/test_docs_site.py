@@ -1,0 +1,95 @@
+"""The documentation site (mkdocs.yml over docs/): every page is in the nav and every nav entry is
+a page, docs/configuration.md and docs/api.md are what svrpo.Config's field docstrings and svrpo.__all__
+generate, and the strict
+build passes (a broken link, a missing page or a docstring the API page cannot render fails it)."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+import yaml
+
+import svrpo
+
+ROOT = Path(__file__).resolve().parents[2]
+DOCS = ROOT / "docs"
+
+
+def _hooks() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("docs_hooks", DOCS / "hooks.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _nav_pages(entries: list[object]) -> list[str]:
+    pages = []
+    for entry in entries:
+        value = next(iter(entry.values())) if isinstance(entry, dict) else entry
+        pages += _nav_pages(value) if isinstance(value, list) else [str(value)]
+    return pages
+
+
+def test_the_nav_lists_every_page_once_and_only_pages() -> None:
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text())
+    nav = _nav_pages(config["nav"])
+    assert len(nav) == len(set(nav))
+    assert set(nav) == {path.name for path in DOCS.glob("*.md")}
+
+
+def test_the_generated_pages_are_current() -> None:
+    done = subprocess.run([sys.executable, "docs/hooks.py", "--check"], cwd=ROOT, capture_output=True,
+                          text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert done.returncode == 0, done.stderr
+
+
+def test_the_configuration_page_has_a_row_per_field_with_its_docstring() -> None:
+    page = _hooks().config_reference()
+    rows = [line for line in page.splitlines() if line.startswith("| `")]
+    assert [re.match(r"\| `(\w+)`", row).group(1) for row in rows] == [  # type: ignore[union-attr]
+        field.name for field in dataclasses.fields(svrpo.Config)]
+    docs = svrpo.field_docs()
+    assert "| `max_kl` | `float` | `0.01` | " in page
+    for row, field in zip(rows, dataclasses.fields(svrpo.Config), strict=True):
+        assert row.count(" | ") == 3, row  # a '|' in a docstring is escaped, the table stays 4 columns
+        assert docs[field.name].replace("|", "\\|").replace("<", "&lt;") in row
+
+
+def test_the_api_page_names_every_public_name() -> None:
+    page = _hooks().api_reference()
+    for name in svrpo.__all__:
+        assert f"## `svrpo.{name}`" in page
+    assert "::: svrpo.api.train" in page or re.search(r"::: svrpo\.[\w.]+\.train\n", page)
+
+
+def test_the_site_builds_strict(tmp_path: Path) -> None:
+    pytest.importorskip("mkdocs", reason="the docs extra: pip install -e '.[docs]'")
+    pytest.importorskip("mkdocstrings")
+    done = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path)],
+                          cwd=ROOT, capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(ROOT), "NO_MKDOCS_2_WARNING": "1"})
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert (tmp_path / "configuration" / "index.html").is_file()
+    api = (tmp_path / "api" / "index.html").read_text()
+    assert "load_policy" in api and "make_preset" in api
+
+
+def test_a_link_to_a_missing_repository_file_fails_the_build(tmp_path: Path) -> None:
+    pytest.importorskip("mkdocs")
+    from mkdocs.exceptions import PluginError
+
+    hooks = _hooks()
+    page = DOCS / "presets.md"
+    assert hooks._outside_link(page, "design", "../DESIGN.md") == "design (`DESIGN.md`)"
+    assert hooks._outside_link(page, "t", "tuning.md") is None  # a page: mkdocs checks it
+    with pytest.raises(PluginError, match="names no repository file"):
+        hooks._outside_link(page, "gone", "../NO-SUCH-FILE.md")
