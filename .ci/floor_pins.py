@@ -3,7 +3,7 @@
 Usage: python3 .ci/floor_pins.py [EXTRA ...] - the core dependencies, plus those of the named
 optional extras. torch is left out: .ci/floors pins the tested CPU build itself (torch==2.13.0),
 in the same pip command, so that nothing pulls another torch. The floors live in one place,
-pyproject.toml; tests/test_dependencies.py checks that each has this form.
+pyproject.toml; tests/project/test_dependencies.py checks that each has this form.
 """
 
 from __future__ import annotations

@@ -33,32 +33,39 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 
 TESTS = [
-    "tests/test_update_reference.py", "tests/test_batch_wiring.py", "tests/test_estimators.py",
-    "tests/test_metrics.py", "tests/test_conjugate_gradient.py", "tests/test_line_search.py",
-    "tests/test_advantages.py", "tests/test_baselines.py", "tests/test_sampling.py",
-    "tests/test_training.py", "tests/test_config.py", "tests/test_envs.py", "tests/test_fast_paths.py",
-    "tests/test_vector_step.py", "tests/test_golden.py", "tests/test_run_state.py",
-    "tests/test_fresh.py", "tests/test_step_rows.py",
+    "tests/algorithm/test_update_reference.py", "tests/algorithm/test_iteration_batch_wiring.py",
+    "tests/algorithm/test_estimators.py", "tests/algorithm/trust_region/test_metrics.py",
+    "tests/algorithm/trust_region/test_conjugate_gradient.py",
+    "tests/algorithm/trust_region/test_line_search.py", "tests/algorithm/test_advantages.py",
+    "tests/models/test_baselines.py", "tests/sampling/test_sampler.py", "tests/rundir/test_training.py",
+    "tests/test_config.py", "tests/test_presets.py", "tests/sampling/test_envs.py",
+    "tests/algorithm/trust_region/test_metrics_fast_paths.py", "tests/sampling/test_rollout_worker.py",
+    "tests/tools/test_bench.py", "tests/sampling/test_vector_step.py", "tests/test_golden.py",
+    "tests/algorithm/test_run_state.py", "tests/project/test_import_graph.py",
+    "tests/algorithm/fresh/test_fresh.py", "tests/algorithm/test_step_rows.py",
 ]
 """The math and pipeline tests (the whole suite minus CLI, sweeps, Ray, plotting and fault tests)."""
 
-FRESH_TESTS = ("tests/test_fresh.py",)
+FRESH_TESTS = ("tests/algorithm/fresh/test_fresh.py",)
 """The closed-form and wiring tests of the fresh-sample inner loop (svrpo/algorithm/fresh/)."""
 
-STATISTICS_TESTS = ("tests/test_table.py", "tests/test_aggregate.py", "tests/test_plotting.py")
+STATISTICS_TESTS = ("tests/analysis/test_table.py", "tests/analysis/test_aggregate.py",
+                    "tests/analysis/test_plotting.py")
 """The tests of the evidence statistics (svrpo/analysis/table.py and aggregate.py: final
 return and its Student-t interval, samples and wall-clock to TRPO's final, IQM with the
 per-resample normaliser, probability of improvement, the sensitivity readings)."""
 
-REPORT_TESTS = ("tests/test_screening_report.py",)
+REPORT_TESTS = ("tests/benchmarks/test_screening_report.py",)
 """The tests of benchmarks/screening_report.py: the pre-registered experiments' selection rule,
 matched KL, confirmation specs and questions, the equal-steps reading."""
 
-COVERAGE_TESTS = ("tests/test_stream_coverage.py", "tests/test_field_coverage.py", "tests/test_fresh.py")
+COVERAGE_TESTS = ("tests/algorithm/test_streams_coverage.py", "tests/test_config_field_coverage.py",
+                  "tests/algorithm/fresh/test_fresh.py")
 """The checks that every random stream resumes and every Config field reaches the run (issue 43)."""
 
-QUEUE_TESTS = ("tests/test_sweep.py::test_several_specs_are_one_queue_task_major_then_seed_then_spec",
-               "tests/test_sweep.py::test_the_plan_is_task_major_then_seed_major_with_the_presets_interleaved")
+QUEUE_TESTS = (
+    "tests/experiments/test_sweep.py::test_several_specs_are_one_queue_task_major_then_seed_then_spec",
+    "tests/experiments/test_sweep.py::test_the_plan_is_task_major_then_seed_major_with_the_presets_interleaved")
 """The tests of the sweep's plan (svrpo/experiments/jobs.py: plan and plan_all's one queue)."""
 
 
@@ -509,16 +516,17 @@ MUTANTS = [
            "gain = head_gain if index == len(linears) - 1 else hidden_gain",
            "gain = hidden_gain",
            "the orthogonal head is initialised with the hidden layers' sqrt 2, not SB3's head gain",
-           ("tests/test_initialization.py",)),
+           ("tests/models/test_initialization.py",)),
     Mutant("init-biases-kept", "svrpo/models/initialization.py",
            "            nn.init.zeros_(layer.bias)\n",
            "",
-           "orthogonal initialisation keeps PyTorch's random biases", ("tests/test_initialization.py",)),
+           "orthogonal initialisation keeps PyTorch's random biases",
+           ("tests/models/test_initialization.py",)),
     Mutant("init-critic-ignores-the-field", "svrpo/algorithm/run.py",
            "            config.weight_init,\n",
            "",
            "the run's critic is built with the default initialisation whatever the config says",
-           ("tests/test_initialization.py",)),
+           ("tests/models/test_initialization.py",)),
     Mutant("stats-cpu-reach-of-trpo-not-the-preset", "svrpo/analysis/table.py",
            "first_reaching(_cumulative_cpu(cpu[task][preset],",
            "first_reaching(_cumulative_cpu(cpu[task][REFERENCE_PRESET],",
@@ -548,7 +556,7 @@ MUTANTS = [
     Mutant("report-finished-one-row-short", "svrpo/rundir/completion.py",
            "return self.logged == self.asked", "return self.logged >= self.asked - 1",
            "a run one iteration short of its budget counts as finished",
-           (*REPORT_TESTS, "tests/test_completion.py")),
+           (*REPORT_TESTS, "tests/rundir/test_completion.py")),
     Mutant("report-matched-kl-of-the-reference", "benchmarks/screening_report.py",
            "kl_runs = np.concatenate([run_medians(kl[task][chosen]) for task in kl])",
            "kl_runs = np.concatenate([run_medians(kl[task][next(iter(kl[task]))]) for task in kl])",

@@ -8,7 +8,7 @@ section of a page that shows `returns.png` (its own folder's) or `EXP/returns.pn
 table with EXP's aggregate (with its "Left out of the IQM" sentence, when it has one), and each
 table of the outside anchor's report (benchmarks/results/sb3_anchor_1M.md, by
 benchmarks/anchor_table.py) wherever a table with the same leading header cells stands. The
-prose is left to the reader to update; tests/test_docs.py fails while a table row is not a
+prose is left to the reader to update; tests/project/test_docs.py fails while a table row is not a
 report's.
 
     python benchmarks/sync_results.py            # rewrite the pages in place

@@ -4,7 +4,7 @@ generated pages.
 `python docs/hooks.py` rewrites docs/configuration.md from svrpo.Config's field docstrings
 (`svrpo.field_docs()`) and docs/api.md from `svrpo.__all__`; `python docs/hooks.py --check` exits
 1 when a committed page is not what it would write, and so does `mkdocs build`
-(tests/test_docs_site.py runs the check).
+(tests/project/test_docs_site.py runs the check).
 """
 
 from __future__ import annotations

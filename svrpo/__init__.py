@@ -22,7 +22,7 @@ _ESTIMATOR_NAMES = ("BatchGradients", "GradientEstimator", "FullGradient", "Mini
                     "SvrgGradient", "SarahGradient", "StormGradient", "PageGradient", "SvrpgGradient",
                     "SrvrpgGradient", "StormPgGradient", "FreshMinibatchGradient")
 """The estimator protocol, its gradient oracle and the class of every entry of the ESTIMATORS
-registry (svrpo.algorithm.estimators), named here without importing torch; tests/test_public_names
+registry (svrpo.algorithm.estimators), named here without importing torch; tests/project/test_public_names
 checks the list against the registry."""
 
 __all__ = ["PRESET_NAMES", "SCALES", "Config", "ConfigError", "field_docs", "load_config", "load_policy",

@@ -1,4 +1,4 @@
-"""Environments a user builds (tests/test_own_environment.py): factories with Gymnasium wrappers
+"""Environments a user builds (tests/e2e/test_own_environment.py): factories with Gymnasium wrappers
 and small classes of one's own, imported by the sampling workers as "tests.own_envs:NAME"."""
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ activation is 51 MB, and each trial paid ~25,000 minor page faults and each surr
 grow faster than N. Raising both thresholds keeps those pages in the heap for reuse.
 
 Results are unchanged: where a buffer lives does not change what is computed into it (torch
-aligns every CPU allocation to 64 bytes either way), which tests/test_allocator.py checks.
+aligns every CPU allocation to 64 bytes either way), which tests/algorithm/test_allocator.py checks.
 """
 
 from __future__ import annotations

@@ -124,7 +124,7 @@ class MlpValueFunction:
         For the network and optimiser built here (a tanh MLP, plain Adam) the loop runs without
         autograd or torch.optim (`_fit_flat`); its numbers are bit-identical to the reference
         loop (`_fit_reference`, which any other network or optimiser setting uses):
-        tests/test_critic_fit.py compares the two with ==.
+        tests/models/test_baselines_critic_fit.py compares the two with ==.
         """
         before = explained_variance(self.predict(observations, timesteps), targets)
         if _flat_fit_applies(self.network, self.optimizer, observations, targets):

@@ -3,7 +3,7 @@
 `BatchStep` has VectorStep's interface (step, reset, get_positions, set_positions) and computes
 the observation, reward and termination with VectorStep's own batched task logic (TASKS), but
 advances the E simulations with one `mujoco.batch.Batch.step(nstep=frame_skip)` call instead of
-E `mj_step` calls from Python. Results are bit-identical to VectorStep's (tests/test_batch_step.py).
+E `mj_step` calls from Python. Results are bit-identical to VectorStep's (tests/sampling/test_batch_step.py).
 Resets still go through the Gymnasium env (its reset noise generator); the reset env's
 integration state is then copied into its batch row. While sampling, the envs' own MjData are
 stale: the state lives in the batch rows until `store_envs` writes it back (get_state does).
@@ -15,7 +15,7 @@ tasks the batch is persistent and each simulation's MjData is copied out (`get_d
 use BatchStep only where it was measured faster (STEPPER_BY_TASK).
 
 `mujoco.batch` exists from MuJoCo 4.0 on. Under MuJoCo 3.x "auto" falls back to VectorStep,
-whose batches are bit-identical (tests/test_dependencies.py), only slower on the four tasks
+whose batches are bit-identical (tests/project/test_dependencies.py), only slower on the four tasks
 above; the run records the stepper and the MuJoCo version in run.json (`stepper_record`).
 
 This module must not import torch: rollout workers import it.

@@ -6,7 +6,7 @@ physics calls exactly as Gymnasium makes them (`data.ctrl[:] = control`, `mj_ste
 frame_skip)`, `mj_rnePostConstraint` where the task reads contact forces) and computes the
 observation, reward and termination of all E envs at once, with the same floating-point
 operations in the same order, so results are bit-identical to Gymnasium's (tested against it
-in tests/test_vector_step.py). Resets still go through the Gymnasium env (its reset noise
+in tests/sampling/test_vector_step.py). Resets still go through the Gymnasium env (its reset noise
 generator). Only the registered default tasks of TASKS are stepped here (batch_step.choose_stepper);
 every other env steps through Gymnasium itself (gym_step.GymStep).
 

@@ -1,12 +1,9 @@
 """The run owns its state: resume is exact for every preset and every registered part, the
 random streams come from one allocator, the Python API follows the CLI's run-directory rules,
-a callback stops a run resumably, and the package's import graph has no cycle."""
+and a callback stops a run resumably."""
 
 from __future__ import annotations
 
-import ast
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -20,8 +17,6 @@ from svrpo.config import Config
 from svrpo.presets import PRESET_NAMES, make_preset
 from svrpo.rundir.run_files import RunDirectoryError
 from tests.helpers import progress_rows, without_clock
-
-PACKAGE = Path(svrpo.__file__).resolve().parent
 
 
 def _tiny(preset: str, **changes: Any) -> Config:
@@ -177,48 +172,3 @@ def test_a_falsy_callback_stops_with_a_checkpoint_and_gets_every_row(tmp_path: P
     assert [r["iteration"] for r in progress_rows(run_dir)] == ["1", "2", "3"]
     assert (run_dir / "checkpoints" / "iter_000003.pt").is_file()
     assert seen[-1]["env_steps"] == 600 and "average_return" in seen[-1]
-
-
-def _module_imports(path: Path) -> set[str]:
-    """svrpo modules imported at module level (not under TYPE_CHECKING, not inside functions)."""
-    tree = ast.parse(path.read_text())
-    found: set[str] = set()
-    for node in tree.body:
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            continue
-        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("svrpo"):
-            found.add(node.module)
-            found.update(f"{node.module}.{alias.name}" for alias in node.names)
-        elif isinstance(node, ast.Import):
-            found.update(alias.name for alias in node.names if alias.name.startswith("svrpo"))
-    return found
-
-
-def test_the_package_import_graph_has_no_cycle() -> None:
-    modules = {".".join(("svrpo", *p.relative_to(PACKAGE).with_suffix("").parts)).removesuffix(".__init__"): p
-               for p in PACKAGE.rglob("*.py")}
-    graph = {name: {m for m in _module_imports(path) if m in modules and m != name}
-             for name, path in modules.items()}
-    # A package imports its own submodules in __init__: those edges are the package itself.
-    for name in graph:
-        graph[name] -= {m for m in graph[name] if name.startswith(m + ".")}
-    visiting: list[str] = []
-    done: set[str] = set()
-
-    def visit(name: str) -> None:
-        if name in done:
-            return
-        assert name not in visiting, " -> ".join([*visiting[visiting.index(name):], name])
-        visiting.append(name)
-        for target in sorted(graph[name]):
-            visit(target)
-        visiting.pop()
-        done.add(name)
-
-    for name in sorted(graph):
-        visit(name)
-
-
-def test_the_cli_imports_no_torch() -> None:
-    code = "import sys, svrpo.cli; assert 'torch' not in sys.modules, 'torch imported'"
-    subprocess.run([sys.executable, "-c", code], check=True)

@@ -7,7 +7,7 @@ the sampler's state (each worker's action noise, each environment's reset genera
 stream, a resume from the iteration-2 checkpoint with that stream alone put back to a fresh state
 (what a stream left out of the checkpoint would restart from) must change the rows after the
 resume point: so the stream is drawn there, and the exact-resume tests (here and
-tests/test_run_state.py) would see it missing. PAGE's coin stream has its own test, under
+tests/algorithm/test_run_state.py) would see it missing. PAGE's coin stream has its own test, under
 settings where both of its branches are taken on both sides of the resume point.
 """
 

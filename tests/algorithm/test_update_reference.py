@@ -546,7 +546,7 @@ def test_update_matches_reference(scenario: Scenario) -> None:
 def test_scenarios_cover_every_option_and_event() -> None:
     """Each registered part of each kind, each surrogate, and each event the mistakes hinge on, is
     in some case: a part registered without a reference scenario fails here. (The fresh-sample
-    estimators run another loop, checked against closed forms in tests/test_fresh.py.)"""
+    estimators run another loop, checked against closed forms in tests/algorithm/fresh/test_fresh.py.)"""
     from svrpo.algorithm.parts import PART_REGISTRIES
     from svrpo.config import FRESH_ESTIMATORS, Surrogate
 

@@ -1,7 +1,7 @@
 """The gradient-error tool (svrpo/analysis/gradient_error.py) against closed forms, and its CLI.
 
-The closed form: a one-step linear-Gaussian bandit, as in tests/test_fresh.py, with the library's
-own policy (GaussianMlpPolicy without hidden layers, in float64): s ~ N(0, 1),
+The closed form: a one-step linear-Gaussian bandit, as in tests/algorithm/fresh/test_fresh.py, with
+the library's own policy (GaussianMlpPolicy without hidden layers, in float64): s ~ N(0, 1),
 a ~ N(theta s + b, sigma^2), reward r = -(a - c s)^2 and advantage A = r, so
 L(w) = E[r] = -((theta - c)^2 + b^2 + sigma^2) and
 grad L = (-2 (theta - c), -2 b, -2 sigma^2) in (theta, b, log sigma). With the ratio surrogate on

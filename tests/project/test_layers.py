@@ -83,7 +83,7 @@ def test_every_top_level_module_has_a_layer() -> None:
     listed = [name for layer in LAYERS for name in layer]
     assert len(listed) == len(set(listed)), "a name in two layers"
     missing = sorted(top_level_names() - set(listed))
-    assert not missing, f"place these in a layer of tests/test_layers.py LAYERS: {missing}"
+    assert not missing, f"place these in a layer of tests/project/test_layers.py LAYERS: {missing}"
     stale = sorted(set(listed) - top_level_names())
     assert not stale, f"LAYERS names modules svrpo/ no longer has: {stale}"
 

@@ -21,7 +21,7 @@ from svrpo.sampling.vector_step import VectorStep
 from svrpo.tools.bench import random_snapshot
 from tests.helpers import progress_rows, without_clock
 
-# MuJoCo 3.x (.ci/floors) has no mujoco.batch: tests/test_dependencies.py covers the fallback.
+# MuJoCo 3.x (.ci/floors) has no mujoco.batch: tests/project/test_dependencies.py covers the fallback.
 pytestmark = pytest.mark.skipif(MUJOCO_BATCH is None, reason="no mujoco.batch (MuJoCo < 4.0)")
 
 BATCH_TASKS = ["Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5"]

@@ -50,7 +50,7 @@ def test_batched_step_matches_gymnasium(env_id: str) -> None:
 
 def test_vector_step_refuses_a_task_without_batched_logic() -> None:
     """Only the registered default tasks are stepped by VectorStep; anything else is GymStep's
-    (tests/test_own_environment.py), never an unwrapped step that drops the user's wrappers."""
+    (tests/e2e/test_own_environment.py), never an unwrapped step that drops the user's wrappers."""
     with pytest.raises(ValueError, match="no batched logic"):
         VectorStep("InvertedPendulum-v5", [make_env("InvertedPendulum-v5")])
 

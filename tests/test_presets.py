@@ -1,0 +1,175 @@
+"""The presets and scales (svrpo/presets.py): every preset builds, validates and round-trips,
+one-field ablations, the paper's per-task settings, and the modern and zoo scales key by key
+against sb3-contrib's and rl-zoo's TRPO."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from svrpo.config import Config, differing_fields, validate
+from svrpo.errors import ConfigError
+from svrpo.presets import PRESET_NAMES, SCALES, make_preset
+from svrpo.sampling.envs import horizon
+
+TASKS = ("Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
+# DESIGN.md: per-task (m, J) and iteration count at paper scale.
+PAPER_M_J_ITERATIONS = {
+    "Swimmer-v5": (5000, 20, 500),
+    "Hopper-v5": (5000, 50, 1000),
+    "Walker2d-v5": (1000, 100, 1000),
+    "HalfCheetah-v5": (5000, 30, 1000),
+    "Ant-v5": (5000, 10, 1000),
+    "Humanoid-v5": (5000, 20, 1000),
+}
+
+
+@pytest.mark.parametrize("scale", SCALES)
+@pytest.mark.parametrize("name", PRESET_NAMES)
+@pytest.mark.parametrize("env_id", TASKS)
+def test_every_preset_builds_validates_and_round_trips(name: str, scale: str, env_id: str) -> None:
+    config = make_preset(name, env_id, scale)  # type: ignore[arg-type]
+    assert validate(config) is config
+    assert config.env_id == env_id
+    assert Config.from_json(config.to_json()) == config
+    assert Config.from_dict(json.loads(config.to_json())) == config
+    if config.fresh_samples:  # N + (J - 1) m per iteration: the last part-iteration is not run
+        left = config.total_steps - config.iterations * config.steps_per_iteration
+        assert 0 <= left < config.steps_per_iteration
+    else:
+        assert config.iterations * config.batch_size == config.total_steps
+
+
+KNOWN_ABLATIONS = {
+    "svrpo-loglik": {"surrogate": ("ratio", "loglik")},
+    "svrpo-sgd": {"estimator": ("svrg", "sgd")},
+    "svrpo-identity": {"metric": ("fisher", "identity")},
+}
+"""The paper's three ablations, pinned by value."""
+VARIANTS = [name for name in PRESET_NAMES if name.startswith("svrpo-")]
+"""Every svrpo-* preset of the preset table (a new one is checked without an edit here)."""
+
+
+@pytest.mark.parametrize("scale", SCALES)
+@pytest.mark.parametrize("env_id", ["Hopper-v5", "Ant-v5"])
+@pytest.mark.parametrize("ablation", VARIANTS)
+def test_ablations_differ_from_svrpo_by_exactly_one_field(ablation: str, env_id: str, scale: str) -> None:
+    """Each svrpo-* preset swaps one part (a registered value of a part field) or the surrogate."""
+    from svrpo.algorithm.parts import PART_REGISTRIES
+
+    base = make_preset("svrpo", env_id, scale)  # type: ignore[arg-type]
+    variant = make_preset(ablation, env_id, scale)  # type: ignore[arg-type]
+    difference = differing_fields(base, variant)
+    assert len(difference) == 1, difference
+    [(field, (_, value))] = difference.items()
+    assert field == "surrogate" or value in PART_REGISTRIES[field], difference
+    if ablation in KNOWN_ABLATIONS:
+        assert difference == KNOWN_ABLATIONS[ablation]
+
+
+def test_svrpo_and_trpo_presets() -> None:
+    svrpo = make_preset("svrpo", "Hopper-v5", "paper")
+    assert (svrpo.estimator, svrpo.metric, svrpo.surrogate) == ("svrg", "fisher", "ratio")
+    assert (svrpo.fisher_subsample, svrpo.backtrack_ratio, svrpo.max_backtracks) == (0.1, 0.5, 10)
+    trpo = make_preset("trpo", "Hopper-v5", "paper")
+    assert trpo.estimator == "full"
+    assert trpo.inner_steps == 1
+    assert trpo.metric == "fisher"
+    assert (trpo.fisher_subsample, trpo.backtrack_ratio, trpo.max_backtracks) == (1.0, 0.8, 15)
+    assert trpo.batch_size == svrpo.batch_size == 50_000
+
+
+@pytest.mark.parametrize("env_id", TASKS)
+def test_paper_scale_per_task_settings(env_id: str) -> None:
+    m, j, iterations = PAPER_M_J_ITERATIONS[env_id]
+    for name in ("svrpo", "svrpo-loglik", "svrpo-sgd", "svrpo-identity"):
+        config = make_preset(name, env_id, "paper")
+        assert (config.minibatch_size, config.inner_steps) == (m, j)
+        assert config.batch_size == 50_000
+        assert config.iterations == iterations
+        deep = env_id.startswith(("Ant", "Humanoid"))
+        assert config.hidden_sizes == ((64, 64, 64) if deep else (64, 64))
+        # Table I / DESIGN.md shared settings.
+        assert (config.gamma, config.max_kl, config.cg_iters, config.cg_damping) == (0.995, 0.01, 10, 1e-5)
+        # The horizon is the task's registered limit, which is the paper's 1000 on all six.
+        assert horizon(env_id, config.max_episode_steps) == 1000
+        assert (config.gae_lambda, config.baseline) == (1.0, "linear")
+        assert config.normalize_observations is False
+        assert config.init_log_std == 0.0
+
+
+def test_laptop_scale_keeps_m_times_j_between_n_and_2n() -> None:
+    for env_id in TASKS:
+        config = make_preset("svrpo", env_id, "laptop")
+        n = config.batch_size
+        assert n <= config.minibatch_size * config.inner_steps <= 2 * n
+
+
+def test_unknown_preset_and_scale_raise_with_suggestion() -> None:
+    with pytest.raises(ConfigError, match="svrpo-sgd"):
+        make_preset("svrpo_sgd")
+    with pytest.raises(ConfigError, match="unknown preset"):
+        make_preset("ppo")
+    with pytest.raises(ConfigError, match="unknown scale"):
+        make_preset("svrpo", scale="cluster")  # type: ignore[arg-type]
+
+
+def test_modern_scale_is_sb3_contribs_trpo_and_svrpo_differs_only_in_its_inner_loop() -> None:
+    """`trpo` at the modern scale is sb3-contrib's TRPO defaults as benchmarks/vs_sb3.py
+    expresses them (max_kl and cg_damping on the summed KL: DESIGN-NOTES 22); every SVRPO preset
+    adds only the estimator and the written (m, J) rule."""
+    trpo = make_preset("trpo", "Walker2d-v5", "modern")
+    expected = {"batch_size": 2048, "gamma": 0.99, "gae_lambda": 0.95, "baseline": "mlp",
+                "baseline_epochs": 10, "baseline_minibatch_size": 128, "normalize_observations": True,
+                "cg_iters": 15, "cg_damping": 0.1, "backtrack_ratio": 0.8, "max_backtracks": 10,
+                "max_kl": 0.01, "fisher_subsample": 1.0, "hidden_sizes": (64, 64), "estimator": "full"}
+    assert {name: getattr(trpo, name) for name in expected} == expected
+    assert trpo.total_steps >= 1_000_000 and trpo.total_steps % trpo.batch_size == 0
+    svrpo = make_preset("svrpo", "Walker2d-v5", "modern")
+    assert differing_fields(trpo, svrpo) == {
+        "estimator": ("full", "svrg"), "minibatch_size": (1000, 512), "inner_steps": (1, 8)}
+    assert svrpo.minibatch_size * svrpo.inner_steps == 2 * svrpo.batch_size
+    assert make_preset("svrpo", "Ant-v5", "modern").hidden_sizes == (64, 64)  # sb3's, every task
+
+
+ZOO_TRPO_YML = {  # rl-baselines3-zoo hyperparams/trpo.yml (22e3ff2), mujoco-defaults <- pybullet-defaults
+    "normalize": True, "n_envs": 2, "n_timesteps": 1e6, "batch_size": 128, "n_steps": 1024,
+    "gamma": 0.99,
+    "gae_lambda": 0.95, "sub_sampling_factor": 1, "cg_max_steps": 25, "cg_damping": 0.1,
+    "n_critic_updates": 20, "learning_rate": 1e-3,
+}
+ZOO_TASK_OVERRIDES = {"HalfCheetah-v5": {"target_kl": 0.04}, "Swimmer-v5": {"gamma": 0.9999},
+                      "Humanoid-v5": {"n_timesteps": 2e6}}
+SB3_CONTRIB_TRPO_DEFAULTS = {"target_kl": 0.01, "line_search_shrinking_factor": 0.8,
+                             "line_search_max_iter": 10, "normalize_advantage": True}
+
+
+@pytest.mark.parametrize("env_id", TASKS)
+def test_zoo_scale_is_rl_zoos_trpo_yml_key_by_key(env_id: str) -> None:
+    """docs/zoo-trpo.md's table: each rl-zoo key (and sb3-contrib default it leaves) in our fields."""
+    zoo = {**ZOO_TRPO_YML, **SB3_CONTRIB_TRPO_DEFAULTS, **ZOO_TASK_OVERRIDES.get(env_id, {})}
+    trpo = make_preset("trpo", env_id, "zoo")
+    rollout = zoo["n_envs"] * zoo["n_steps"]
+    expected = {
+        "normalize_observations": zoo["normalize"], "normalize_rewards": zoo["normalize"],
+        "num_workers": 0, "envs_per_worker": zoo["n_envs"], "batch_size": rollout,
+        "total_steps": math.ceil(zoo["n_timesteps"] / rollout) * rollout,  # whole rollouts until n_timesteps
+        "baseline": "mlp", "baseline_minibatch_size": zoo["batch_size"],
+        "baseline_epochs": zoo["n_critic_updates"],
+        "baseline_lr": zoo["learning_rate"], "gamma": zoo["gamma"], "gae_lambda": zoo["gae_lambda"],
+        "fisher_subsample": 1 / zoo["sub_sampling_factor"], "cg_iters": zoo["cg_max_steps"],
+        "cg_damping": zoo["cg_damping"], "max_kl": zoo["target_kl"], "kl_per_action_dimension": True,
+        "backtrack_ratio": zoo["line_search_shrinking_factor"],
+        "max_backtracks": zoo["line_search_max_iter"],
+        "normalize_advantages": zoo["normalize_advantage"], "estimator": "full", "inner_steps": 1,
+        # MlpPolicy: tanh (64, 64) actor and critic, log_std_init 0, ortho_init True
+        "hidden_sizes": (64, 64), "baseline_hidden_sizes": (64, 64), "init_log_std": 0.0,
+        "weight_init": "orthogonal", "stagger_first_episodes": False,
+    }
+    assert {name: getattr(trpo, name) for name in expected} == expected
+    # Every other preset: the same fields plus the modern scale's inner-loop rule.
+    svrpo = make_preset("svrpo", env_id, "zoo")
+    assert differing_fields(trpo, svrpo) == {
+        "estimator": ("full", "svrg"), "minibatch_size": (1000, 512), "inner_steps": (1, 8)}
