@@ -11,7 +11,7 @@ from pathlib import Path
 
 from tests.helpers import load_benchmark
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 REPORT = json.loads((ROOT / "benchmarks" / "results" / "mutation.json").read_text())
 
 
