@@ -23,7 +23,7 @@ from scipy import stats
 from svrpo.analysis.gradient_error import ErrorSplit, GradientErrorReport, NoiseScale, StepErrors, VectorError
 from tests.helpers import load_benchmark
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 report = load_benchmark("gradient_error_report")
 TASKS = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5")
 M = 524_288
