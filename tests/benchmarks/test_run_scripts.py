@@ -215,13 +215,14 @@ def test_equal_budget_tuning_runs_every_study_one_trial_at_a_time_in_turn(tmp_pa
 
 
 def test_gradient_error_retrains_the_25_percent_policies_then_makes_every_call_of_the_protocol(
-        tmp_path: Path) -> None:
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """results/gradient-error/run.sh (PROTOCOL.md sections 2, 3 and 7): the nine 25% policies
     re-trained with the protocol's command, then calls A and B at all 36 policies (primary), the
     paper's N = 50,000 at Hopper's 12, then A-all and B-all; each call at its policy with the
     protocol's flags, and a second run of the script makes no call whose output exists."""
     script = ROOT / "results" / "gradient-error" / "run.sh"
     root = tmp_path / "ge"
+    monkeypatch.setenv("JOBS", "1")  # two jobs record two calls in either order: the order is the queue's
     calls = _calls(script, tmp_path, str(root))
     trains = [call for call in calls if call[0] == "train"]
     measured = [call for call in calls if call[0] == "gradient-error"]
