@@ -279,3 +279,29 @@ def test_gradient_error_retrains_the_25_percent_policies_then_makes_every_call_o
     for call in measured:  # the stand-in writes nothing: a finished call is one with its summary
         (Path(_value(call, "--out")).with_suffix("") / "summary.json").write_text("{}")
     assert not _calls(script, tmp_path, str(root))[9:]  # only the (stand-in) re-training again
+
+
+def test_gradient_error_collect_copies_finished_calls_only_and_the_figure_at_100_percent(
+        tmp_path: Path) -> None:
+    """results/gradient-error/collect.sh (PROTOCOL.md section 9): a call with its summary.json is
+    copied (four files, the PNG only at the 100% point), a call in progress (OUT.tmp) or one
+    without a summary is not, and the 25% policies' check comes along."""
+    root, dest = tmp_path / "ge", tmp_path / "dest"
+    files = ("steps.csv", "summary.json", "time.txt", "stdout.txt", "gradient_error.png")
+    for call in ("Hopper-v5/seed0/100/A", "Hopper-v5/seed0/25/B", "Hopper-v5/seed1/0/A.tmp",
+                 "Walker2d-v5/seed2/50/A-all"):
+        (root / "raw" / call).mkdir(parents=True)
+        for name in files:
+            (root / "raw" / call / name).write_text(call)
+    (root / "raw/Walker2d-v5/seed2/50/A-all/summary.json").write_text("")  # cut: not finished
+    (root / "policies").mkdir()
+    (root / "policies/check.txt").write_text("0 re-trained run(s) differ\n")
+    script = ROOT / "results" / "gradient-error" / "collect.sh"
+    done = subprocess.run(["bash", str(script), str(root), str(dest)], check=True,
+                          capture_output=True, text=True)
+    assert done.stdout.startswith("2 finished calls")
+    copied = sorted(str(path.relative_to(dest)) for path in dest.rglob("*") if path.is_file())
+    assert copied == ["policies/check.txt",
+                      *(f"raw/Hopper-v5/seed0/100/A/{name}" for name in sorted(files)),
+                      *(f"raw/Hopper-v5/seed0/25/B/{name}" for name in sorted(files[:4]))]
+    assert (dest / "raw/Hopper-v5/seed0/25/B/steps.csv").read_text() == "Hopper-v5/seed0/25/B"
