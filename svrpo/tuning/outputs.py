@@ -72,12 +72,17 @@ def _cell(value: Any) -> str:
     return str(value)
 
 
+NORMALISED = "normalised by the task's reference: (R - low) / (high - low)"
+"""How a task's score is normalised (spec.Reference.normalise), as best.yaml and report.md say it."""
+
+
 def best_config_text(spec: TuneSpec, study: optuna.Study, trial: optuna.trial.FrozenTrial) -> str:
     """best.yaml: the preset, scale, first task, the spec's overrides and the trial's fields."""
     task = next(iter(spec.tasks))
     fields = {"env_id": task, **trial_fields(spec, trial.params, task), **spec.overrides}
     header = (f"Best trial of the study {spec.name}: trial {trial.number}, score {float(trial.value):.4f}\n"  # type: ignore[arg-type]
-              f"(mean over {', '.join(spec.tasks)} of the final-window {spec.objective.metric} / reference,\n"
+              f"(mean over {', '.join(spec.tasks)} of the final-window {spec.objective.metric},\n"
+              f"{NORMALISED}; "
               f"{_count(len(spec.seeds), 'seed')} each, {spec.steps} environment steps per run).\n"
               "Train it: svrpo train --config best.yaml [--env TASK] [--steps N]")
     return config_file_text(spec.preset, spec.scale, fields, header)
@@ -141,7 +146,7 @@ def report_text(spec: TuneSpec, study: optuna.Study, storage: str, skipped: dict
              f"{_count(len(spec.seeds), 'seed')} per task, {spec.steps} environment steps per run; "
              "score: mean over tasks of the "
              f"{spec.objective.metric} averaged over the last {spec.objective.window:.0%} of the budget, "
-             "divided by the task's reference; TPE (seed "
+             f"{NORMALISED}; TPE (seed "
              f"{spec.sampler_seed}), pruner {spec.pruner} at rungs {rungs}.",
              "",
              f"Storage: `{storage}`. Trials: {counts['COMPLETE']} complete, {counts['PRUNED']} pruned, "

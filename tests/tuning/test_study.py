@@ -172,6 +172,8 @@ def test_a_tiny_study_end_to_end_and_its_best_config_trains(tmp_path: Path) -> N
     assert len(lines) == 4
     best = max(trials, key=lambda t: t.value)  # type: ignore[attr-defined]
     assert f"trial {best.number}" in (study_dir / "report.md").read_text()  # type: ignore[attr-defined]
+    for name in ("best.yaml", "report.md"):  # the score is said as Reference.normalise computes it
+        assert "(R - low) / (high - low)" in (study_dir / name).read_text(), name
     # The best config trains through the CLI as a user types it.
     out = tmp_path / "best-run"
     train = subprocess.run([sys.executable, "-m", "svrpo.cli", "train", "--config",
