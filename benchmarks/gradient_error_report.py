@@ -39,7 +39,7 @@ import csv
 import json
 import math
 import sys
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -408,21 +408,18 @@ def pays_off(share: Interval, log_r_true: Interval) -> bool:
 
 # --- Tables -------------------------------------------------------------------------------------
 
-def share_text(value: Interval) -> str:
+def share_text(value: Interval, scale: Callable[[float], float] = float) -> str:
+    """'mean [low, high]' with three decimals, each number passed through `scale` first."""
     if not math.isfinite(value.mean):
         return "n/a"
     if not value.decided:
-        return f"{value.mean:.3f}"
-    return f"{value.mean:.3f} [{value.low:.3f}, {value.high:.3f}]"
+        return f"{scale(value.mean):.3f}"
+    return f"{scale(value.mean):.3f} [{scale(value.low):.3f}, {scale(value.high):.3f}]"
 
 
 def ratio_text(value: Interval) -> str:
     """exp of the mean log and of its interval's ends (a geometric mean)."""
-    if not math.isfinite(value.mean):
-        return "n/a"
-    if not value.decided:
-        return f"{math.exp(value.mean):.3f}"
-    return f"{math.exp(value.mean):.3f} [{math.exp(value.low):.3f}, {math.exp(value.high):.3f}]"
+    return share_text(value, math.exp)
 
 
 @dataclass(frozen=True)
