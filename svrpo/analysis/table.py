@@ -249,13 +249,19 @@ def _median_ratio(runs: Sequence[RunCurve]) -> float:
 
 def reach_text(row: TableRow) -> str:
     """'35% (350,000 steps)', 'not reached', 'TRPO did not improve' or 'n/a'."""
+    return _unreached(row) or f"{row.percent_of_trpo_steps:.0f}% ({row.steps_to_trpo_final:,.0f} steps)"
+
+
+def _unreached(row: TableRow) -> str | None:
+    """Why a row has no cost to reach TRPO's final return ('n/a': no TRPO runs, 'TRPO did not
+    improve', 'not reached'), or None when it has one."""
     if not row.has_reference:
         return "n/a"
     if not row.trpo_improved:
         return NOT_IMPROVED
     if math.isnan(row.steps_to_trpo_final):
         return "not reached"
-    return f"{row.percent_of_trpo_steps:.0f}% ({row.steps_to_trpo_final:,.0f} steps)"
+    return None
 
 
 def final_text(row: TableRow) -> str:
@@ -279,12 +285,9 @@ def eval_text(row: TableRow) -> str:
 def wall_text(row: TableRow) -> str:
     """'42% (1,234 s)', 'not reached', 'TRPO did not improve' or 'n/a' (no TRPO runs, or no
     wall-clock curves)."""
-    if not row.has_reference:
-        return "n/a"
-    if not row.trpo_improved:
-        return NOT_IMPROVED
-    if math.isnan(row.steps_to_trpo_final):
-        return "not reached"
+    unreached = _unreached(row)
+    if unreached is not None:
+        return unreached
     if math.isnan(row.percent_of_trpo_wall):
         return "n/a"
     return f"{row.percent_of_trpo_wall:.0f}% ({row.wall_to_trpo_final_s:,.0f} s)"
