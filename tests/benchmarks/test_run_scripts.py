@@ -305,3 +305,26 @@ def test_gradient_error_collect_copies_finished_calls_only_and_the_figure_at_100
                       *(f"raw/Hopper-v5/seed0/100/A/{name}" for name in sorted(files)),
                       *(f"raw/Hopper-v5/seed0/25/B/{name}" for name in sorted(files[:4]))]
     assert (dest / "raw/Hopper-v5/seed0/25/B/steps.csv").read_text() == "Hopper-v5/seed0/25/B"
+
+
+def test_equal_budget_confirmation_runs_seeds_200_to_209_one_at_a_time_every_spec_together(
+        tmp_path: Path) -> None:
+    """PROTOCOL.md section 3: seeds 200-209, seed-major, the four specs in one queue; the specs
+    carry their own execution settings, so the script adds none (the zoo TRPO keeps its layout)."""
+    here = tmp_path / "results" / "equal-budget-tuning"
+    shutil.copytree(ROOT / "results" / "equal-budget-tuning", here,
+                    ignore=shutil.ignore_patterns("studies", "confirmation"))
+    script = here / "run_confirmation.sh"
+    result = subprocess.run(["bash", str(script)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and "tuning_confirmation.py specs" in result.stderr
+    (here / "confirmation").mkdir()
+    names = ["stormpg", "svrpo", "trpo", "zoo-trpo"]
+    for name in names:
+        (here / "confirmation" / f"{name}.yaml").write_text(
+            f"name: ebt-confirm-{name}\ntasks: [Hopper-v5]\npresets: [trpo]\n"
+            "seeds: [200, 201, 202, 203, 204, 205, 206, 207, 208, 209]\nscale: modern\n")
+    calls = _calls(script, tmp_path, "root")
+    planned = [[(Path(spec).stem, _planned_seeds(call, spec)) for spec in _specs(call)] for call in calls]
+    assert planned == [[(name, (seed,)) for name in names] for seed in range(200, 210)]
+    assert all(call[-6:] == ["--seeds", f"{seed}-{seed}", "--root", "root", "--jobs", "2"]
+               for call, seed in zip(calls, range(200, 210), strict=True))
