@@ -69,6 +69,13 @@ QUEUE_TESTS = (
 """The tests of the sweep's plan (svrpo/experiments/jobs.py: plan and plan_all's one queue)."""
 
 
+TUNING_TESTS = ("tests/tuning/test_scoring.py", "tests/benchmarks/test_tuning_confirmation.py")
+"""The tests of a trial's score (svrpo/tuning/scoring.py, spec.resolve) and of the equal-budget
+tuning's confirmation (benchmarks/tuning_confirmation.py: section 6's rule, the specs, the questions)."""
+
+GRADIENT_ERROR_TESTS = ("tests/analysis/test_gradient_error.py",)
+"""The closed-form tests of the gradient-error measurement (svrpo/analysis/gradient_error.py)."""
+
 @dataclass(frozen=True)
 class Mutant:
     name: str
@@ -642,6 +649,57 @@ MUTANTS = [
            'return tasks[job.run_dir.parent.parent.name], seeds[int(job.run_dir.name.removeprefix("seed"))]',
            'return seeds[int(job.run_dir.name.removeprefix("seed"))], tasks[job.run_dir.parent.parent.name]',
            "the queue ordered seed-major, not task-major", QUEUE_TESTS),
+    # --- svrpo/tuning: a trial's score ------------------------------------------------------
+    Mutant("tune-window-edge-closed", "svrpo/tuning/scoring.py",
+           'window = [row for row in within if row["env_steps"] > start]',
+           'window = [row for row in within if row["env_steps"] >= start]',
+           "the final window includes the row at its lower edge", TUNING_TESTS),
+    Mutant("tune-empty-window-first-row", "svrpo/tuning/scoring.py",
+           "or within[-1:]", "or within[:1]",
+           "an empty window falls back to the first row instead of the last", TUNING_TESTS),
+    Mutant("tune-missing-metric-no-fallback", "svrpo/tuning/scoring.py",
+           "        values = earlier[-1:]\n", "        values = []\n",
+           "a metric not measured in the window gives no score", TUNING_TESTS),
+    Mutant("tune-task-score-sum", "svrpo/tuning/scoring.py",
+           "for value in values) / len(values)", "for value in values) / len(returns)",
+           "a task's score divided by the number of tasks, not of seeds", TUNING_TESTS),
+    Mutant("tune-fraction-of-base", "svrpo/tuning/spec.py",
+           "whole = values.get(param.of, getattr(base, param.of))", "whole = getattr(base, param.of)",
+           "a fraction reads the preset's base value, not the trial's searched one", TUNING_TESTS),
+    Mutant("tune-fraction-truncated", "svrpo/tuning/spec.py",
+           "max(1, round(share))", "int(share)",
+           "a fraction field truncated instead of rounded (and may be 0)", TUNING_TESTS),
+    # --- benchmarks/tuning_confirmation.py: section 6 and the questions ---------------------
+    Mutant("confirm-no-tie-rule", "benchmarks/tuning_confirmation.py",
+           "if score > best - tie)", "if score >= best)",
+           "the highest score wins even where an earlier trial ties it", TUNING_TESTS),
+    Mutant("confirm-tie-to-latest", "benchmarks/tuning_confirmation.py",
+           "chosen = min(number for number", "chosen = max(number for number",
+           "a tie goes to the later trial", TUNING_TESTS),
+    Mutant("confirm-keeps-eval-every", "benchmarks/tuning_confirmation.py",
+           'NOT_CONFIRMED = ("eval_every",)', "NOT_CONFIRMED = ()",
+           "the confirmation runs without the deterministic evaluation (tuning's eval_every 0)",
+           TUNING_TESTS),
+    Mutant("confirm-zoo-question-reversed", "benchmarks/tuning_confirmation.py",
+           '(TUNED["trpo"], ZOO_NAME, "does', '(ZOO_NAME, TUNED["trpo"], "does',
+           "P(zoo > tuned trpo) asked in place of P(tuned trpo > zoo)", TUNING_TESTS),
+    # --- svrpo/analysis/gradient_error.py: the measurement's math ---------------------------
+    Mutant("ge-cross-term-sign", "svrpo/analysis/gradient_error.py",
+           "cross = 2.0 * float((estimate.double() - batch.double()).dot(batch.double() - true.double()))",
+           "cross = -2.0 * float((estimate.double() - batch.double()).dot(batch.double() - true.double()))",
+           "the split's cross term with the wrong sign (the parts no longer add up)", GRADIENT_ERROR_TESTS),
+    Mutant("ge-trace-without-part-size", "svrpo/analysis/gradient_error.py",
+           "trace = size * float(parts.var(dim=0, unbiased=True).sum())",
+           "trace = float(parts.var(dim=0, unbiased=True).sum())",
+           "tr(Sigma) is the part gradients' variance, not the per-sample one", GRADIENT_ERROR_TESTS),
+    Mutant("ge-norm-biased", "svrpo/analysis/gradient_error.py",
+           "norm_sq = float(parts.mean(dim=0).pow(2).sum()) - trace / rows",
+           "norm_sq = float(parts.mean(dim=0).pow(2).sum())",
+           "|G|^2 without the bias correction tr(Sigma) / (K n)", GRADIENT_ERROR_TESTS),
+    Mutant("ge-standard-error-of-one-part", "svrpo/analysis/gradient_error.py",
+           "variance = self.part_gradients.double().var(dim=0, unbiased=True) / self.part_gradients.shape[0]",
+           "variance = self.part_gradients.double().var(dim=0, unbiased=True)",
+           "the reference's standard error is one part's, not the mean's", GRADIENT_ERROR_TESTS),
 ]
 
 
@@ -697,7 +755,9 @@ def main() -> None:
     report = {
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
         "tests": TESTS, "statistics_tests": list(STATISTICS_TESTS), "report_tests": list(REPORT_TESTS),
-        "queue_tests": list(QUEUE_TESTS), "coverage_tests": list(COVERAGE_TESTS), "mutants": len(results),
+        "queue_tests": list(QUEUE_TESTS), "coverage_tests": list(COVERAGE_TESTS),
+        "tuning_tests": list(TUNING_TESTS), "gradient_error_tests": list(GRADIENT_ERROR_TESTS),
+        "mutants": len(results),
         "killed": len(results) - len(survivors), "not_killed": survivors, "results": results,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
