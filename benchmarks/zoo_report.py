@@ -6,13 +6,14 @@
 Reads the two arms' run directories (ROOT/zoo-trpo-zoo and ROOT/zoo-trpo-raw-rewards-zoo, written
 by results/zoo-trpo/run.sh), their 150-episode evaluations (ROOT/zoo-trpo-eval150/EXPERIMENT/TASK/
 seedK.txt, `svrpo evaluate` output) and our modern TRPO (MODERN/figure1-modern/TASK/trpo), and
-writes one table per task: the mean over seeds with a 95% Student-t interval of the final
-deterministic evaluation, the 150-episode evaluation and the final training return (last 10% of
+writes report.md: one table per task with the mean over seeds and a 95% Student-t interval of the
+final deterministic evaluation, the 150-episode evaluation and the final training return (last 10% of
 iterations) of each arm and of modern TRPO, rl-zoo's published number beside them with where it
 falls against our 150-episode interval, Welch's comparisons on the final deterministic evaluation
 (zoo - modern, zoo - raw rewards), CPU seconds per run, and across tasks P(zoo > modern) and
 P(zoo > raw rewards) with stratified-bootstrap 95% intervals. Unfinished runs are left out (n says
-how many seeds each number is over).
+how many seeds each number is over). Beside it, learning_curves.png: the three arms' training
+curves per task (descriptive; no statistic reads it).
 """
 
 from __future__ import annotations
@@ -158,6 +159,23 @@ def render(root: Path, modern_root: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def write_figure(root: Path, modern_root: Path, out: Path) -> Path:
+    """Learning curves (training return against environment steps, mean over seeds with a 95%
+    bootstrap band, trailing mean over 10 iterations) of the two arms and modern TRPO, one panel
+    per task -> PNG. Descriptive: no statistic of the protocol reads it."""
+    from svrpo.analysis.plotting import load_curve, plot_panels
+
+    arms = {"zoo": root / ZOO, "zoo, raw rewards": root / RAW, "modern": modern_root / MODERN}
+    groups = {task: {label: [load_curve(d, "average_return")
+                             for d in sorted((folder / task / "trpo").glob("seed*")) if is_finished(d)]
+                     for label, folder in arms.items()} for task in TASKS}
+    groups = {task: {label: runs for label, runs in by_arm.items() if runs}
+              for task, by_arm in groups.items()}
+    return plot_panels({task: by_arm for task, by_arm in groups.items() if by_arm}, out,
+                       "average return (training)", smoothing=10,
+                       title="rl-zoo's TRPO (zoo scale), without reward normalisation, and modern TRPO")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=Path, required=True, help="the root run.sh wrote to")
@@ -171,6 +189,7 @@ def main(argv: list[str] | None = None) -> None:
     temporary.write_text(report)
     temporary.replace(args.out)
     print(report)
+    print(f"wrote {write_figure(args.runs, args.modern, args.out.with_name('learning_curves.png'))}")
 
 
 if __name__ == "__main__":

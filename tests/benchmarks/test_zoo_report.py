@@ -63,3 +63,8 @@ def test_the_report_reads_each_measure_and_places_the_published_number(tmp_path:
     assert cells[1].startswith("+1650 [") and cells[2].startswith("+2150 [")  # zoo - modern, zoo - raw
     assert cells[3] == "8"  # 4 iterations x (1.5 + 0.5) CPU seconds
     assert "P(zoo > modern) = 1.00" in text and "over 1 tasks" in text
+    # The CLI writes the report and, beside it, the arms' learning curves (finished runs only).
+    out = tmp_path / "out" / "report.md"
+    report.main(["--runs", str(runs), "--modern", str(modern), "--out", str(out)])
+    assert out.read_text() == text
+    assert (out.parent / "learning_curves.png").stat().st_size > 0
