@@ -74,7 +74,9 @@ TUNING_TESTS = ("tests/tuning/test_scoring.py", "tests/benchmarks/test_tuning_co
 tuning's confirmation (benchmarks/tuning_confirmation.py: section 6's rule, the specs, the questions)."""
 
 GRADIENT_ERROR_TESTS = ("tests/analysis/test_gradient_error.py",)
-"""The closed-form tests of the gradient-error measurement (svrpo/analysis/gradient_error.py)."""
+"""The closed-form tests of the gradient-error measurement (svrpo/analysis/gradient_split.py and
+gradient_error.py)."""
+
 
 @dataclass(frozen=True)
 class Mutant:
@@ -683,20 +685,20 @@ MUTANTS = [
     Mutant("confirm-zoo-question-reversed", "benchmarks/tuning_confirmation.py",
            '(TUNED["trpo"], ZOO_NAME, "does', '(ZOO_NAME, TUNED["trpo"], "does',
            "P(zoo > tuned trpo) asked in place of P(tuned trpo > zoo)", TUNING_TESTS),
-    # --- svrpo/analysis/gradient_error.py: the measurement's math ---------------------------
-    Mutant("ge-cross-term-sign", "svrpo/analysis/gradient_error.py",
+    # --- svrpo/analysis/gradient_split.py: the gradient-error measurement's math -------------
+    Mutant("ge-cross-term-sign", "svrpo/analysis/gradient_split.py",
            "cross = 2.0 * float((estimate.double() - batch.double()).dot(batch.double() - true.double()))",
            "cross = -2.0 * float((estimate.double() - batch.double()).dot(batch.double() - true.double()))",
            "the split's cross term with the wrong sign (the parts no longer add up)", GRADIENT_ERROR_TESTS),
-    Mutant("ge-trace-without-part-size", "svrpo/analysis/gradient_error.py",
+    Mutant("ge-trace-without-part-size", "svrpo/analysis/gradient_split.py",
            "trace = size * float(parts.var(dim=0, unbiased=True).sum())",
            "trace = float(parts.var(dim=0, unbiased=True).sum())",
            "tr(Sigma) is the part gradients' variance, not the per-sample one", GRADIENT_ERROR_TESTS),
-    Mutant("ge-norm-biased", "svrpo/analysis/gradient_error.py",
+    Mutant("ge-norm-biased", "svrpo/analysis/gradient_split.py",
            "norm_sq = float(parts.mean(dim=0).pow(2).sum()) - trace / rows",
            "norm_sq = float(parts.mean(dim=0).pow(2).sum())",
            "|G|^2 without the bias correction tr(Sigma) / (K n)", GRADIENT_ERROR_TESTS),
-    Mutant("ge-standard-error-of-one-part", "svrpo/analysis/gradient_error.py",
+    Mutant("ge-standard-error-of-one-part", "svrpo/analysis/gradient_split.py",
            "variance = self.part_gradients.double().var(dim=0, unbiased=True) / self.part_gradients.shape[0]",
            "variance = self.part_gradients.double().var(dim=0, unbiased=True)",
            "the reference's standard error is one part's, not the mean's", GRADIENT_ERROR_TESTS),

@@ -1,4 +1,5 @@
-"""The gradient-error tool (svrpo/analysis/gradient_error.py) against closed forms, and its CLI.
+"""The gradient-error tool (svrpo/analysis/gradient_error.py, its math in gradient_split.py)
+against closed forms, and its CLI.
 
 The closed form: a one-step linear-Gaussian bandit, as in tests/algorithm/fresh/test_fresh.py, with
 the library's own policy (GaussianMlpPolicy without hidden layers, in float64): s ~ N(0, 1),
@@ -28,12 +29,8 @@ from svrpo.algorithm.objectives import SurrogateBatch, surrogate
 from svrpo.algorithm.parts import update_parts
 from svrpo.algorithm.streams import RandomStreams
 from svrpo.algorithm.update import update_policy
-from svrpo.analysis.gradient_error import (
-    gradient_noise_scale,
-    reference_gradient,
-    replay_errors,
-    vector_error,
-)
+from svrpo.analysis.gradient_error import replay_errors
+from svrpo.analysis.gradient_split import gradient_noise_scale, reference_gradient, vector_error
 from svrpo.models.parameters import flat_gradient, flat_parameters, set_flat_parameters
 from svrpo.models.policy import GaussianMlpPolicy
 from svrpo.presets import make_preset

@@ -20,7 +20,8 @@ import pytest
 import torch
 from scipy import stats
 
-from svrpo.analysis.gradient_error import ErrorSplit, GradientErrorReport, NoiseScale, StepErrors, VectorError
+from svrpo.analysis.gradient_error import GradientErrorReport, StepErrors
+from svrpo.analysis.gradient_split import ErrorSplit, NoiseScale, VectorError
 from tests.helpers import load_benchmark
 
 ROOT = Path(__file__).resolve().parents[2]
