@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -158,15 +159,17 @@ def write_specs(studies: Path, out: Path, spec_dir: Path = EXPERIMENT) -> list[P
         path = out / name
         if path.exists() and path.read_text() != text:
             raise ValueError(f"{path} exists with other content; the confirmation's specs are fixed")
+    with tempfile.TemporaryDirectory() as scratch:  # what the sweep will read, checked before writing
+        for name in files:
+            (Path(scratch) / name).write_text(texts[name])
+            spec = load_spec(str(Path(scratch) / name))
+            for task in spec.tasks:
+                spec.config(task, spec.presets[0], spec.seeds[0])
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, text in texts.items():
         (out / name).write_text(text)
         written.append(out / name)
-    for name in files:  # what the sweep will read: every spec must load and build its configs
-        spec = load_spec(str(out / name))
-        for task in spec.tasks:
-            spec.config(task, spec.presets[0], spec.seeds[0])
     return written
 
 

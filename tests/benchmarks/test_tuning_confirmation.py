@@ -114,6 +114,16 @@ def test_specs_confirm_the_chosen_trials_on_fresh_seeds_at_one_million_steps(tmp
         script.write_specs(tmp_path / "studies", out)
 
 
+def test_a_spec_that_cannot_run_writes_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    script = _script()
+    _full_studies(tmp_path / "studies")
+    bad = {**script.zoo_spec(), "overrides": {"total_steps": 1_000_000, "max_kl": -0.01}}
+    monkeypatch.setattr(script, "zoo_spec", lambda: bad)
+    with pytest.raises(ValueError, match="max_kl"):
+        script.write_specs(tmp_path / "studies", tmp_path / "confirmation")
+    assert not (tmp_path / "confirmation").exists()
+
+
 def test_specs_wait_for_every_study_to_finish(tmp_path: Path) -> None:
     studies = tmp_path / "studies"
     _study(studies, "trpo", {n: 0.5 for n in range(20)}, told=19)
