@@ -427,16 +427,35 @@ COMMITTED_TRPO = "trpo-d0.01 (figure1-modern)"
 which both protocols show beside the confirmation without re-running it."""
 
 
-def committed_trpo(runs: Path, tasks: Sequence[str]) -> dict[str, list[Path]]:
-    """The committed modern sweep's trpo runs of `tasks`, by seed."""
+def committed_runs(runs: Path, experiment: str, preset: str, tasks: Sequence[str]) -> dict[str, list[Path]]:
+    """A committed sweep's runs of `preset` on `tasks` (RUNS/EXPERIMENT/TASK/PRESET/seedK), by
+    seed; ValueError naming the tasks that have none."""
     def seeds(task: str) -> list[Path]:
-        return sorted((runs / "figure1-modern" / task / "trpo").glob("seed*"), key=lambda p: int(p.name[4:]))
+        return sorted((runs / experiment / task / preset).glob("seed*"), key=lambda p: int(p.name[4:]))
 
     found = {task: seeds(task) for task in tasks}
     missing = [task for task, dirs in found.items() if not dirs]
     if missing:
-        raise ValueError(f"no committed trpo runs of {', '.join(missing)} under {runs / 'figure1-modern'}")
+        raise ValueError(f"no committed {preset} runs of {', '.join(missing)} under {runs / experiment}")
     return found
+
+
+def committed_trpo(runs: Path, tasks: Sequence[str]) -> dict[str, list[Path]]:
+    """The committed modern sweep's trpo runs of `tasks`, by seed."""
+    return committed_runs(runs, "figure1-modern", "trpo", tasks)
+
+
+def answer(finals_by: Mapping[str, Sequence[np.ndarray]], x: str, y: str, question: str,
+           resamples: int) -> tuple[dict[str, Any], str]:
+    """P(x > y) over the tasks' final returns, read by the protocols' section 8: (the JSON entry,
+    its markdown row)."""
+    estimate = probability_bootstrap(finals_by[x], finals_by[y], resamples)
+    entry: dict[str, Any] = {"x": x, "y": y, "question": question, "value": estimate.value,
+                             "ci": [estimate.low, estimate.high]}
+    entry["no_effect"] = no_effect(entry)
+    verdict = "no effect: the interval contains 0.5" if entry["no_effect"] else (
+        f"{x} ahead" if estimate.value > 0.5 else f"{y} ahead")
+    return entry, f"| {question} P({x} > {y}) | {_entry(entry)} | {verdict} |"
 
 
 def _decision(experiment: str) -> dict[str, Any]:
@@ -497,14 +516,9 @@ def confirmation_report(screening: Screening, runs: Path, resamples: int = 2000
              "| question | P(X > Y) [95% CI] | reading (PROTOCOL.md section 8) |", "|---|---|---|"]
     answers = []
     for x, y, question in comparisons:
-        estimate = probability_bootstrap(finals_by[x], finals_by[y], resamples)
-        entry = {"x": x, "y": y, "question": question, "value": estimate.value,
-                 "ci": [estimate.low, estimate.high]}
-        entry["no_effect"] = no_effect(entry)
+        entry, row = answer(finals_by, x, y, question, resamples)
         answers.append(entry)
-        verdict = "no effect: the interval contains 0.5" if entry["no_effect"] else (
-            f"{x} ahead" if estimate.value > 0.5 else f"{y} ahead")
-        lines.append(f"| {question} P({x} > {y}) | {_entry(entry)} | {verdict} |")
+        lines.append(row)
     borrowed = [name for name in groups if name == COMMITTED_TRPO or name.endswith("(same batch)")]
     lines += ["", f"The CPU and wall-clock seconds of {' and '.join(borrowed)} come from the schedule "
               "those runs were made in (another sweep's), not this confirmation's."]

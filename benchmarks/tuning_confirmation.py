@@ -39,7 +39,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import screening_report as screening  # noqa: E402
 
-from svrpo.analysis.aggregate import probability_bootstrap  # noqa: E402
 from svrpo.experiments.specs import PAPER_TASKS, load_spec  # noqa: E402
 from svrpo.tuning.spec import TuneSpec, load_tune_spec  # noqa: E402
 from svrpo.tuning.study import STUDY_FILE, trial_fields  # noqa: E402
@@ -101,8 +100,8 @@ def load_trials(spec: TuneSpec, studies: Path) -> list[Any]:
     return [trial for trial in told if trial.state == optuna.trial.TrialState.COMPLETE]
 
 
-def chosen_trial(method: str, studies: Path, spec_dir: Path = EXPERIMENT) -> Chosen:
-    spec = load_tune_spec(spec_dir / f"{method}.yaml")
+def chosen_trial(method: str, spec: TuneSpec, studies: Path) -> Chosen:
+    """Section 6 applied to the study of `spec` (the method's tune spec) in STUDIES."""
     trials = load_trials(spec, studies)
     number, best_number = choose([(t.number, float(t.value)) for t in trials])
     trial = next(t for t in trials if t.number == number)
@@ -137,8 +136,9 @@ def confirmation_specs(studies: Path, spec_dir: Path = EXPERIMENT
     files: dict[str, dict[str, Any]] = {}
     selection: dict[str, Any] = {}
     for method in METHODS:
-        chosen = chosen_trial(method, studies, spec_dir)
-        files[f"{method}.yaml"] = method_spec(chosen, load_tune_spec(spec_dir / f"{method}.yaml"))
+        spec = load_tune_spec(spec_dir / f"{method}.yaml")
+        chosen = chosen_trial(method, spec, studies)
+        files[f"{method}.yaml"] = method_spec(chosen, spec)
         selection[method] = {"study": chosen.study, "trial": chosen.number, "score": chosen.score,
                              "best_trial": chosen.best_number,
                              "tie_moved_the_choice": chosen.number != chosen.best_number,
@@ -189,16 +189,6 @@ DEFAULTS = [(TUNED[method], TODAY[method], f"does tuned {method} beat today's {m
             for method in METHODS]
 
 
-def committed(runs: Path, experiment: str, preset: str, tasks: Sequence[str]) -> dict[str, list[Path]]:
-    """A committed sweep's runs of `preset` on `tasks`, by seed (ValueError if a task has none)."""
-    found = {task: sorted((runs / experiment / task / preset).glob("seed*"), key=lambda p: int(p.name[4:]))
-             for task in tasks}
-    missing = [task for task, dirs in found.items() if not dirs]
-    if missing:
-        raise ValueError(f"no committed {preset} runs of {', '.join(missing)} under {runs / experiment}")
-    return found
-
-
 def plan(runs: Path, specs: Path) -> screening.Groups:
     """Every configuration's run directories: the four confirmed ones and the committed ones."""
     groups: screening.Groups = {}
@@ -206,9 +196,10 @@ def plan(runs: Path, specs: Path) -> screening.Groups:
         groups[TUNED[method]] = screening.run_dirs(load_spec(str(specs / f"{method}.yaml")), runs)
     groups[ZOO_NAME] = screening.run_dirs(load_spec(str(specs / f"{ZOO}.yaml")), runs)
     tasks = list(PAPER_TASKS)
-    groups[TODAY["trpo"]] = committed(runs, "figure1-modern", "trpo", tasks)
-    groups[TODAY["svrpo"]] = committed(runs, "figure1-modern", "svrpo", tasks)
-    groups[TODAY["stormpg"]] = committed(runs, "fs-confirm-stormpg-b256-modern", "stormpg", tasks)
+    groups[TODAY["trpo"]] = screening.committed_trpo(runs, tasks)
+    groups[TODAY["svrpo"]] = screening.committed_runs(runs, "figure1-modern", "svrpo", tasks)
+    groups[TODAY["stormpg"]] = screening.committed_runs(runs, "fs-confirm-stormpg-b256-modern", "stormpg",
+                                                        tasks)
     return groups
 
 
@@ -227,14 +218,9 @@ def report(runs: Path, specs: Path, resamples: int = 2000) -> tuple[list[str], d
         lines += [f"## {title}", "", "| question | P(X > Y) [95% CI] | reading (PROTOCOL.md section 8) |",
                   "|---|---|---|"]
         for x, y, question in pairs:
-            estimate = probability_bootstrap(finals_by[x], finals_by[y], resamples)
-            entry = {"x": x, "y": y, "question": question, "value": estimate.value,
-                     "ci": [estimate.low, estimate.high]}
-            entry["no_effect"] = screening.no_effect(entry)
+            entry, row = screening.answer(finals_by, x, y, question, resamples)
             answers[part].append(entry)
-            verdict = "no effect: the interval contains 0.5" if entry["no_effect"] else (
-                f"{x} ahead" if estimate.value > 0.5 else f"{y} ahead")
-            lines.append(f"| {question} P({x} > {y}) | {screening._entry(entry)} | {verdict} |")
+            lines.append(row)
         lines.append("")
     lines += [f"The CPU and wall-clock seconds of {', '.join(TODAY.values())} come from the schedules those "
               "runs were made in (other sweeps'), not this confirmation's; their seeds are theirs (0-4, and "
