@@ -3,7 +3,7 @@
 A session's machine may not be kept, so a study that runs for many sessions (results/
 equal-budget-tuning) is copied into the repository when a session ends and copied back when the
 next one starts (results/partial-runs/README.md). For every study under ROOT (a directory that
-holds study.db, svrpo/tuning/study.py's layout) the copy keeps the storage and the outputs
+holds study.db, svrpo/tuning/storage.py's layout) the copy keeps the storage and the outputs
 beside it, and of each trial's run directories:
 
 - a trial the storage has told (COMPLETE, PRUNED, FAIL): config.json, run.json, progress.csv and

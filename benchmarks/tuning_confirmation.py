@@ -41,7 +41,8 @@ import screening_report as screening  # noqa: E402
 
 from svrpo.experiments.specs import PAPER_TASKS, load_spec  # noqa: E402
 from svrpo.tuning.spec import TuneSpec, load_tune_spec  # noqa: E402
-from svrpo.tuning.study import STUDY_FILE, trial_fields  # noqa: E402
+from svrpo.tuning.storage import STUDY_FILE  # noqa: E402
+from svrpo.tuning.study import trial_fields  # noqa: E402
 
 EXPERIMENT = screening.RESULTS / "equal-budget-tuning"
 METHODS = ("trpo", "svrpo", "stormpg")

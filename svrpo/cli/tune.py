@@ -35,9 +35,9 @@ def run(args: argparse.Namespace, extra: list[str]) -> int:
     if root.exists() and not root.is_dir():
         raise UsageError(f"--root {root} is not a directory")
     from svrpo.experiments.backends import BackendError
-    from svrpo.tuning import study as tuning
+    from svrpo.tuning.storage import default_storage
 
-    storage = args.storage or tuning.default_storage(spec, root)
+    storage = args.storage or default_storage(spec, root)
     try:
         backend.connect()  # before anything is written: an unreachable cluster is bad input
         return _tune_study(spec, args, backend, root, storage)
@@ -54,9 +54,10 @@ def _tune_study(spec: TuneSpec, args: argparse.Namespace, backend: Backend, root
 
     from svrpo.experiments.runner import raise_keyboard_interrupt
     from svrpo.tuning import outputs
-    from svrpo.tuning import study as tuning
+    from svrpo.tuning import storage as stored
+    from svrpo.tuning.study import run_study
 
-    directory = tuning.study_directory(spec, root)
+    directory = stored.study_directory(spec, root)
     target = args.trials if args.trials is not None else spec.trials
 
     def make_directory() -> None:
@@ -67,11 +68,11 @@ def _tune_study(spec: TuneSpec, args: argparse.Namespace, backend: Backend, root
 
     if args.storage is None:
         make_directory()  # the default SQLite file lives in it
-    study = tuning.open_study(spec, storage)
+    study = stored.open_study(spec, storage)
     make_directory()
     signal.signal(signal.SIGTERM, raise_keyboard_interrupt)  # stop like Ctrl-C: runs checkpoint
     print(f"study {spec.name} in {storage}: {target} trials of {len(spec.tasks)} tasks x "
-          f"{len(spec.seeds)} seeds x {spec.steps} steps; runs in {directory / tuning.TRIALS_DIR}",
+          f"{len(spec.seeds)} seeds x {spec.steps} steps; runs in {directory / stored.TRIALS_DIR}",
           file=sys.stderr)
     finished = sum(t.state.is_finished() for t in study.get_trials(deepcopy=False))
     bar = tqdm(total=target, initial=min(finished, target), unit="trial", desc="trials done",
@@ -87,7 +88,7 @@ def _tune_study(spec: TuneSpec, args: argparse.Namespace, backend: Backend, root
 
     on_told(study)
     try:
-        summary = tuning.run_study(spec, root, study, backend, target, args.parallel_trials, on_told,
+        summary = run_study(spec, root, study, backend, target, args.parallel_trials, on_told,
                                    say=lambda text: bar.write(text, file=sys.stderr))
     except KeyboardInterrupt:
         bar.close()

@@ -14,7 +14,8 @@ import pytest
 
 from svrpo.experiments.specs import load_spec
 from svrpo.tuning.spec import load_tune_spec
-from svrpo.tuning.study import STUDY_FILE, suggest, trial_fields
+from svrpo.tuning.storage import STUDY_FILE
+from svrpo.tuning.study import suggest, trial_fields
 from tests.benchmarks.test_screening_report import _write_run
 from tests.helpers import load_benchmark
 

@@ -114,7 +114,8 @@ def test_the_seeded_sampler_proposes_the_same_first_parameters(tmp_path: Path) -
     """The same sampler seed gives the same first trial's parameters; another seed others."""
     import optuna
 
-    from svrpo.tuning.study import make_pruner, make_sampler, suggest
+    from svrpo.tuning.storage import make_pruner, make_sampler
+    from svrpo.tuning.study import suggest
 
     spec_path = tmp_path / "tiny.yaml"
     spec_path.write_text(TINY)
@@ -265,7 +266,7 @@ def test_a_pruned_trial_stays_pruned_and_a_study_of_another_spec_is_refused(tmp_
     spec.write_text(TINY.replace("trials: 3", "trials: 1"))
     root = tmp_path / "tune"
     (root / "tiny").mkdir(parents=True)
-    from svrpo.tuning.study import open_study
+    from svrpo.tuning.storage import open_study
 
     study = open_study(load_tune_spec(spec), f"sqlite:///{root / 'tiny' / 'study.db'}")
     trial = study.ask()
