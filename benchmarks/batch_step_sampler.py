@@ -44,7 +44,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 
 from svrpo.sampling.batch_step import uses_batch_step  # noqa: E402
 from svrpo.sampling.sampler import Batch, Sampler  # noqa: E402
-from svrpo.tools.bench import machine_info, physics_replay, random_snapshot, replay_states  # noqa: E402
+from svrpo.tools.machine import machine_info  # noqa: E402
+from svrpo.tools.sampling_bench import physics_replay, random_snapshot, replay_states  # noqa: E402
 
 TASKS = ["Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5"]
 _FIELDS = ("observations", "actions", "rewards", "next_observations", "terminated", "truncated",

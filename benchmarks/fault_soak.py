@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a checkout, uninstalled
 
 from svrpo.rundir import checkpoint  # noqa: E402
-from svrpo.tools.bench import machine_info  # noqa: E402
+from svrpo.tools.machine import machine_info  # noqa: E402
 from tests.helpers import RAY_SPEC, progress_rows, without_clock  # noqa: E402
 
 ITERATIONS = 20

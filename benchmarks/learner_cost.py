@@ -43,7 +43,8 @@ from svrpo.algorithm.run import build_run
 from svrpo.algorithm.update import update_policy  # noqa: E402
 from svrpo.models.baselines import MlpValueFunction  # noqa: E402
 from svrpo.presets import make_preset  # noqa: E402
-from svrpo.tools.bench import UPDATE_PARTS, _Timers, machine_info, timed_parts  # noqa: E402
+from svrpo.tools.machine import machine_info  # noqa: E402
+from svrpo.tools.update_bench import UPDATE_PARTS, Timers, timed_parts  # noqa: E402
 
 
 def _learned_state(run: Any) -> dict[str, Any]:
@@ -64,7 +65,7 @@ def reference_fit_pieces(
     critic: MlpValueFunction, inputs: torch.Tensor, targets: torch.Tensor
 ) -> dict[str, float]:
     """The fit as it was before issue 21 (torch.optim.Adam, a gather per step), pieces timed (s)."""
-    timers = _Timers()
+    timers = Timers()
     network, optimizer = critic.network, critic.optimizer
     count = inputs.shape[0]
     with timers.time("total"):
@@ -112,7 +113,7 @@ def measure_task(env_id: str, warmup: int, iterations: int, seed: int) -> dict[s
                 _load_learned_state(run, before)
                 for generator, state in zip(generators, states, strict=True):
                     generator.set_state(state)
-                timers = _Timers()
+                timers = Timers()
                 tic = time.perf_counter()
                 stats = update_policy(run.policy, data, timed_parts(parts, timers), run.generator,
                                       run.probe_generator)

@@ -69,7 +69,8 @@ from svrpo.sampling.rollout_worker import RolloutWorker, WorkerChunk  # noqa: E4
 from svrpo.sampling.sampler import Sampler, steps_per_env  # noqa: E402
 from svrpo.sampling.vector_step import TASKS as LOGIC  # noqa: E402
 from svrpo.sampling.vector_step import VectorStep  # noqa: E402
-from svrpo.tools.bench import machine_info, random_snapshot, replay_states  # noqa: E402
+from svrpo.tools.machine import machine_info  # noqa: E402
+from svrpo.tools.sampling_bench import random_snapshot, replay_states  # noqa: E402
 
 TASKS = ["Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5"]
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION

@@ -24,13 +24,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
-from svrpo.tools.bench import (  # noqa: E402
-    machine_info,
-    random_snapshot,
-    sampling_cpu_efficiency,
-    sampling_vs_physics,
-    trained_snapshot,
-)
+from svrpo.tools.machine import machine_info  # noqa: E402
+from svrpo.tools.sampling_bench import random_snapshot, sampling_cpu_efficiency, sampling_vs_physics  # noqa: E402
+from svrpo.tools.update_bench import trained_snapshot  # noqa: E402
 
 TASKS = ["Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5"]
 

@@ -67,7 +67,7 @@ def main() -> None:
         print(json.dumps(one_point(int(args.one[0]), hidden)))
         return
 
-    from svrpo.tools.bench import machine_info
+    from svrpo.tools.machine import machine_info
 
     report: dict[str, Any] = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
                               "machine": machine_info(), "points": []}

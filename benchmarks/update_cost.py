@@ -23,7 +23,8 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
-from svrpo.tools.bench import machine_info, update_breakdown  # noqa: E402
+from svrpo.tools.machine import machine_info  # noqa: E402
+from svrpo.tools.update_bench import update_breakdown  # noqa: E402
 
 
 def main() -> None:

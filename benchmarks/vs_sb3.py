@@ -182,7 +182,7 @@ def main() -> None:
         return
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from svrpo.tools.bench import machine_info
+    from svrpo.tools.machine import machine_info
 
     report: dict[str, Any] = {
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),

@@ -3,7 +3,7 @@
 Two measurements, both with KL anchored at the sampling policy (the presets' setting):
 
 * ``same-batches``: both rules update from the same batch, policy and generator states
-  (svrpo.tools.bench.update_breakdown, after `--warmup-iterations` iterations so the policy has moved),
+  (svrpo.tools.update_bench.update_breakdown, after `--warmup-iterations` iterations so the policy has moved),
   at laptop scale on Hopper-v5 and Walker2d-v5: surrogate gain, inner steps run and accepted,
   line-search trials and update time. Writes results/inner-stop/inner_stop_same_batches.json.
 * ``learning``: reads the runs of the two sweeps results/inner-stop/{all,failed_search}.yaml
@@ -35,7 +35,8 @@ from svrpo.analysis.plotting import load_curve, mean_and_ci  # noqa: E402
 from svrpo.analysis.table import smoothed_seeds  # noqa: E402
 from svrpo.rundir.completion import is_finished  # noqa: E402
 from svrpo.rundir.progress_log import read_progress  # noqa: E402
-from svrpo.tools.bench import machine_info, update_breakdown  # noqa: E402
+from svrpo.tools.machine import machine_info  # noqa: E402
+from svrpo.tools.update_bench import update_breakdown  # noqa: E402
 
 RESULTS = Path(__file__).parent
 TASKS = ("Hopper-v5", "Walker2d-v5")

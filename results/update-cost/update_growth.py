@@ -4,7 +4,7 @@ the fix (svrpo.algorithm.allocator) measured against glibc's default allocation 
 Each measurement runs in a fresh process, once with glibc's defaults ("default") and once with
 svrpo.algorithm.allocator.keep_freed_memory ("keep", what training does), alternately:
 
-1. The update split into its parts (svrpo.tools.bench.update_breakdown) at N = 50,000 and 200,000
+1. The update split into its parts (svrpo.tools.update_bench.update_breakdown) at N = 50,000 and 200,000
    (Hopper-v5, paper preset, m = N/10, J = 50, one torch thread), with the number of calls of
    each part, so per-call cost and call counts can be told apart.
 2. The hot kernels alone, per row, with the process's minor page faults per call: the line
@@ -50,7 +50,7 @@ def _set_mode(mode: str) -> None:
 def one_update(batch_size: int) -> dict[str, Any]:
     import resource
 
-    from svrpo.tools.bench import update_breakdown
+    from svrpo.tools.update_bench import update_breakdown
 
     point = update_breakdown("Hopper-v5", "paper", seed=0, warmup_iterations=0, batch_size=batch_size,
                              total_steps=batch_size * 10,
@@ -125,7 +125,7 @@ def main() -> None:
         print(json.dumps(work))
         return
 
-    from svrpo.tools.bench import machine_info
+    from svrpo.tools.machine import machine_info
 
     report: dict[str, Any] = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
                               "machine": machine_info(), "updates": {m: [] for m in MODES},

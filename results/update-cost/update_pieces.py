@@ -32,7 +32,7 @@ from svrpo.algorithm.objectives import SurrogateBatch, mean_kl_from, old_log_pro
 from svrpo.algorithm.trust_region.metrics import autograd_fisher_vector_product, fisher_vector_product  # noqa: E402
 from svrpo.algorithm.update import FullBatchEvaluator  # noqa: E402
 from svrpo.models.policy import GaussianMlpPolicy  # noqa: E402
-from svrpo.tools.bench import machine_info  # noqa: E402
+from svrpo.tools.machine import machine_info  # noqa: E402
 
 
 def _seconds(function: Callable[[], Any], inner: int) -> float:

@@ -254,7 +254,8 @@ ALLOWED_GENERATORS: dict[str, str] = {
                                   "outside any run: nothing it draws is resumed",
     "analysis/plotting.py": "bootstrap intervals of finished runs, not part of a run",
     "analysis/aggregate.py": "bootstrap intervals of finished runs, not part of a run",
-    "tools/bench.py": "benchmark inputs, not part of a run",
+    "tools/sampling_bench.py": "benchmark inputs, not part of a run",
+    "tools/update_bench.py": "benchmark inputs, not part of a run",
 }
 """Files of svrpo/ allowed to make a generator or draw from a global one, and why."""
 

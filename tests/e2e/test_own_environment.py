@@ -29,7 +29,7 @@ from svrpo.sampling.envs import make_env, scale_action
 from svrpo.sampling.restarting import RestartingSampler
 from svrpo.sampling.rollout_worker import RolloutWorker
 from svrpo.sampling.sampler import Sampler
-from svrpo.tools.bench import random_snapshot
+from svrpo.tools.sampling_bench import random_snapshot
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}

@@ -18,7 +18,7 @@ from svrpo.sampling.gym_step import GymStep
 from svrpo.sampling.rollout_worker import RolloutWorker, WorkerChunk
 from svrpo.sampling.sampler import Sampler
 from svrpo.sampling.vector_step import VectorStep
-from svrpo.tools.bench import random_snapshot
+from svrpo.tools.sampling_bench import random_snapshot
 from tests.helpers import progress_rows, without_clock
 
 # MuJoCo 3.x (.ci/floors) has no mujoco.batch: tests/project/test_dependencies.py covers the fallback.

@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 def test_sampling_benchmark_replay_is_bit_exact() -> None:
-    from svrpo.tools.bench import random_snapshot, sampling_vs_physics
+    from svrpo.tools.sampling_bench import random_snapshot, sampling_vs_physics
 
     result = sampling_vs_physics("Hopper-v5", random_snapshot("Hopper-v5"), steps=400, repeats=1,
                                  workers=1, envs_per_worker=2)
