@@ -204,9 +204,9 @@ def plan(runs: Path, specs: Path) -> screening.Groups:
     return groups
 
 
-def report(runs: Path, specs: Path, resamples: int = 2000) -> tuple[list[str], dict[str, Any]]:
-    """(markdown lines, JSON summary); ValueError until every confirmation run has finished."""
-    groups = plan(runs, specs)
+def report(groups: screening.Groups, resamples: int = 2000) -> tuple[list[str], dict[str, Any]]:
+    """(markdown lines, JSON summary) of `plan`'s groups; ValueError until every confirmation run
+    has finished."""
     missing = screening.unfinished(groups)
     if missing:
         raise ValueError(f"{len(missing)} runs have not finished (first: {missing[0]})")
@@ -249,12 +249,13 @@ def main(argv: list[str] | None = None) -> None:
             for path in write_specs(args.studies, args.out):
                 print(f"wrote {path}")
             return
-        lines, summary = report(args.runs, args.specs)
+        groups = plan(args.runs, args.specs)
+        lines, summary = report(groups)
     except ValueError as error:
         raise SystemExit(f"tuning_confirmation: {error}") from None
     (args.out_dir / "confirmation.md").write_text("\n".join(lines))
     (args.out_dir / "confirmation.json").write_text(json.dumps(summary, indent=2) + "\n")
-    screening.write_figure(plan(args.runs, args.specs), args.out_dir / "confirmation.png",
+    screening.write_figure(groups, args.out_dir / "confirmation.png",
                            "equal-budget tuning: confirmation")
     print(f"wrote {args.out_dir / 'confirmation.md'}")
 

@@ -178,7 +178,7 @@ def test_report_answers_the_issues_questions_and_the_defaults_rule(tmp_path: Pat
                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     script = _script()
     specs, runs = _runs(tmp_path, script, monkeypatch)
-    lines, summary = script.report(runs, specs, resamples=200)
+    lines, summary = script.report(script.plan(runs, specs), resamples=200)
     answers = {(a["x"], a["y"]): (a["value"], a["no_effect"]) for a in summary["questions"]}
     assert answers == {("svrpo (tuned)", "trpo (tuned)"): (1.0, False),
                        ("stormpg (tuned)", "trpo (tuned)"): (0.0, False),
@@ -208,11 +208,11 @@ def test_report_refuses_until_every_confirmation_run_has_finished(tmp_path: Path
     short = runs / "ebt-confirm-zoo-trpo-zoo" / "Walker2d-v5" / "trpo" / "seed201" / "progress.csv"
     short.write_text(short.read_text()[:-3])
     with pytest.raises(ValueError, match="1 runs have not finished"):
-        script.report(runs, specs, resamples=50)
+        script.report(script.plan(runs, specs), resamples=50)
     for seed in range(3):  # a committed comparison missing: named
         path = runs / "figure1-modern" / "Walker2d-v5" / "svrpo" / f"seed{seed}"
         for item in sorted(path.rglob("*"), reverse=True):
             item.unlink() if item.is_file() else item.rmdir()
         path.rmdir()
     with pytest.raises(ValueError, match="no committed svrpo runs of Walker2d-v5"):
-        script.report(runs, specs, resamples=50)
+        script.report(script.plan(runs, specs), resamples=50)
