@@ -72,17 +72,24 @@ def eval150_mean(path: Path) -> float:
     return math.nan
 
 
-def arm_seeds(root: Path, experiment: str, task: str) -> list[Seed]:
-    """The finished seeds of ROOT/EXPERIMENT/TASK/trpo (a run that has not logged every iteration
-    its config asks for, svrpo.rundir.completion, or has no final evaluation, is left out)."""
-    seeds = []
+def seed_dirs(root: Path, experiment: str, task: str) -> list[Path]:
+    """The finished runs of ROOT/EXPERIMENT/TASK/trpo with a final evaluation (a run that has not
+    logged every iteration its config asks for, svrpo.rundir.completion, is left out)."""
+    found = []
     for seed_dir in sorted((root / experiment / task / "trpo").glob("seed*")):
-        if not (seed_dir / "progress.csv").is_file():
+        if not (seed_dir / "progress.csv").is_file() or not is_finished(seed_dir):
             continue
+        if math.isfinite(read_progress(seed_dir / "progress.csv")[-1]["eval_return"]):
+            found.append(seed_dir)
+    return found
+
+
+def arm_seeds(root: Path, experiment: str, task: str) -> list[Seed]:
+    """The seeds of `seed_dirs` with their final returns and CPU seconds."""
+    seeds = []
+    for seed_dir in seed_dirs(root, experiment, task):
         rows = read_progress(seed_dir / "progress.csv")
         config = json.loads((seed_dir / "config.json").read_text())
-        if not is_finished(seed_dir) or not math.isfinite(rows[-1]["eval_return"]):
-            continue
         cpu = sum(row["cpu_learner"] + row["cpu_workers"] for row in rows)
         seeds.append(Seed(int(config["seed"]), rows[-1]["eval_return"],
                           anchor_table.last_tenth_of_iterations([row["average_return"] for row in rows]),
@@ -165,10 +172,9 @@ def write_figure(root: Path, modern_root: Path, out: Path) -> Path:
     per task -> PNG. Descriptive: no statistic of the protocol reads it."""
     from svrpo.analysis.plotting import load_curve, plot_panels
 
-    arms = {"zoo": root / ZOO, "zoo, raw rewards": root / RAW, "modern": modern_root / MODERN}
-    groups = {task: {label: [load_curve(d, "average_return")
-                             for d in sorted((folder / task / "trpo").glob("seed*")) if is_finished(d)]
-                     for label, folder in arms.items()} for task in TASKS}
+    arms = {"zoo": (root, ZOO), "zoo, raw rewards": (root, RAW), "modern": (modern_root, MODERN)}
+    groups = {task: {label: [load_curve(d, "average_return") for d in seed_dirs(folder, experiment, task)]
+                     for label, (folder, experiment) in arms.items()} for task in TASKS}
     groups = {task: {label: runs for label, runs in by_arm.items() if runs}
               for task, by_arm in groups.items()}
     return plot_panels({task: by_arm for task, by_arm in groups.items() if by_arm}, out,
