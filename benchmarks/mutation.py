@@ -69,8 +69,10 @@ QUEUE_TESTS = (
 """The tests of the sweep's plan (svrpo/experiments/jobs.py: plan and plan_all's one queue)."""
 
 
-TUNING_TESTS = ("tests/tuning/test_scoring.py", "tests/benchmarks/test_tuning_confirmation.py")
-"""The tests of a trial's score (svrpo/tuning/scoring.py, spec.resolve) and of the equal-budget
+TUNING_TESTS = ("tests/tuning/test_scoring.py", "tests/tuning/test_stages.py",
+                "tests/benchmarks/test_tuning_confirmation.py")
+"""The tests of a trial's score (svrpo/tuning/scoring.py, spec.resolve), of its stages
+(svrpo/tuning/stages.py: the budget in steps, retries) and of the equal-budget
 tuning's confirmation (benchmarks/tuning_confirmation.py: section 6's rule, the specs, the questions)."""
 
 GRADIENT_ERROR_TESTS = ("tests/analysis/test_gradient_error.py",)
@@ -671,6 +673,27 @@ MUTANTS = [
     Mutant("tune-fraction-truncated", "svrpo/tuning/spec.py",
            "max(1, round(share))", "int(share)",
            "a fraction field truncated instead of rounded (and may be 0)", TUNING_TESTS),
+    # --- svrpo/tuning/stages.py: a stage's budget in steps ----------------------------------
+    Mutant("tune-stage-counts-iterations", "svrpo/tuning/stages.py",
+           "room = (budget - steps) // config.steps_per_iteration",
+           "room = (budget - done * config.steps_per_iteration) // config.steps_per_iteration",
+           "a stage counts the iterations done, not the steps they sampled", TUNING_TESTS),
+    Mutant("tune-stage-zero-room-runs", "svrpo/tuning/stages.py",
+           "    if room < 1:\n", "    if room < 0:\n",
+           "a stage with no whole iteration left still trains", TUNING_TESTS),
+    Mutant("tune-stage-total-is-room", "svrpo/tuning/stages.py",
+           "return (done + room) * config.steps_per_iteration", "return room * config.steps_per_iteration",
+           "total_steps is the new iterations only, not the run's", TUNING_TESTS),
+    Mutant("tune-stage-reads-cut-row", "svrpo/tuning/stages.py",
+           "islice(csv.DictReader(handle), done - 1, None)", "islice(csv.DictReader(handle), done, None)",
+           "the steps read from the row after the last complete one", TUNING_TESTS),
+    Mutant("tune-retry-once-less", "svrpo/tuning/stages.py",
+           "if work.attempts > _RETRIES:", "if work.attempts >= _RETRIES:",
+           "a killed run is retried once less than _RETRIES", TUNING_TESTS),
+    Mutant("tune-extend-any-change", "svrpo/tuning/stages.py",
+           'if set(differing_fields(existing, job.config)) == {"total_steps"}:',
+           'if "total_steps" in differing_fields(existing, job.config):',
+           "config.json rewritten when fields besides total_steps changed", TUNING_TESTS),
     # --- benchmarks/tuning_confirmation.py: section 6 and the questions ---------------------
     Mutant("confirm-no-tie-rule", "benchmarks/tuning_confirmation.py",
            "if score > best - tie)", "if score >= best)",

@@ -10,6 +10,8 @@ training resumes from the stage's last checkpoint exactly as if it had never sto
 
 from __future__ import annotations
 
+import csv
+import itertools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -99,19 +101,23 @@ def train_to(spec: TuneSpec, active: list[TrialWork], budget: int, backend: Back
 def stage_total_steps(config: Config, run_dir: Path, budget: int) -> int | None:
     """total_steps that trains the run in `run_dir` as far as whole iterations fit in `budget`
     steps from where it stands, or None when not one more fits (or none ever: S > budget)."""
-    from svrpo.rundir.progress_log import read_progress
-
-    per_iteration = config.steps_per_iteration
-    done, steps = 0, 0
-    path = run_dir / "progress.csv"
-    if path.is_file():
-        done = logged_iterations(run_dir / PROGRESS_FILE)
-        if done:
-            steps = int(read_progress(path)[done - 1]["env_steps"])
-    room = (budget - steps) // per_iteration
+    done, steps = logged_steps(run_dir / PROGRESS_FILE)
+    room = (budget - steps) // config.steps_per_iteration
     if room < 1:
         return None
-    return (done + room) * per_iteration
+    return (done + room) * config.steps_per_iteration
+
+
+def logged_steps(progress: Path) -> tuple[int, int]:
+    """(k, s_k): the complete iterations `progress` logs and the environment steps they sampled
+    ((0, 0) without the file). A last row cut short by a killed writer is not counted: the run
+    resumes from its checkpoint before it."""
+    done = logged_iterations(progress)
+    if done == 0:
+        return 0, 0
+    with open(progress, newline="") as handle:
+        row = next(itertools.islice(csv.DictReader(handle), done - 1, None))
+    return done, int(float(row["env_steps"]))
 
 
 def _extend(job: RunJob) -> None:
