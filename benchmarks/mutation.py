@@ -51,9 +51,9 @@ FRESH_TESTS = ("tests/algorithm/fresh/test_fresh.py",)
 
 STATISTICS_TESTS = ("tests/analysis/test_table.py", "tests/analysis/test_aggregate.py",
                     "tests/analysis/test_plotting.py")
-"""The tests of the evidence statistics (svrpo/analysis/table.py and aggregate.py: final
-return and its Student-t interval, samples and wall-clock to TRPO's final, IQM with the
-per-resample normaliser, probability of improvement, the sensitivity readings)."""
+"""The tests of the evidence statistics (svrpo/analysis/table.py, aggregate.py and
+aggregate_report.py: final return and its Student-t interval, samples and wall-clock to TRPO's
+final, IQM with the per-resample normaliser, probability of improvement, the sensitivity readings)."""
 
 REPORT_TESTS = ("tests/benchmarks/test_screening_report.py",)
 """The tests of benchmarks/screening_report.py: the pre-registered experiments' selection rule,
@@ -396,7 +396,7 @@ MUTANTS = [
     Mutant("linear-features-time-scale", "svrpo/models/baselines.py",
            "t = timesteps.double().unsqueeze(-1) / 100.0", "t = timesteps.double().unsqueeze(-1) / 10.0",
            "rllab's time features scaled differently"),
-    # --- analysis/aggregate.py and table.py: the evidence statistics --------------------
+    # --- analysis/aggregate.py, aggregate_report.py and table.py: the evidence statistics -----
     Mutant("stats-iqm-trim-10pct", "svrpo/analysis/aggregate.py",
            "IQM_TRIM = 0.25", "IQM_TRIM = 0.1",
            "the IQM trims 10% at each end, not 25%", STATISTICS_TESTS),
@@ -417,8 +417,8 @@ MUTANTS = [
            "draws_y = draws_x",
            "the compared runs resampled with the same indices as the preset's", STATISTICS_TESTS),
     Mutant("stats-normalise-from-zero", "svrpo/analysis/aggregate.py",
-           "return _finite_mean(firsts), _finite_mean(reference)",
-           "return 0.0, _finite_mean(reference)",
+           "return finite_mean(firsts), finite_mean(reference)",
+           "return 0.0, finite_mean(reference)",
            "scores normalised from 0 instead of the untrained policy's return", STATISTICS_TESTS),
     Mutant("stats-normaliser-fixed-in-resamples", "svrpo/analysis/aggregate.py",
            "random_return, reference = _row_finite_mean(firsts), _row_finite_mean(scores[REFERENCE])",
@@ -459,19 +459,19 @@ MUTANTS = [
            "probability_bootstrap(finals[BASE], finals[p], resamples)",
            "probability_bootstrap(finals[p], finals[BASE], resamples)",
            "P(ablation > svrpo) reported as P(svrpo > ablation)", STATISTICS_TESTS),
-    Mutant("stats-sensitivity-last-is-first", "svrpo/analysis/aggregate.py",
+    Mutant("stats-sensitivity-last-is-first", "svrpo/analysis/aggregate_report.py",
            "return float(finite[-1]) if finite.size else math.nan",
            "return float(finite[0]) if finite.size else math.nan",
            "the last-iteration and evaluation readings take the first value", STATISTICS_TESTS),
-    Mutant("stats-sensitivity-area-is-window", "svrpo/analysis/aggregate.py",
-           "return np.array([_finite_mean(np.asarray(run.values[:length], dtype=np.float64)) "
+    Mutant("stats-sensitivity-area-is-window", "svrpo/analysis/aggregate_report.py",
+           "return np.array([finite_mean(np.asarray(run.values[:length], dtype=np.float64)) "
            "for run in runs])",
            "return window_scores(runs)",
            "the area-under-the-curve reading is the final window again", STATISTICS_TESTS),
-    Mutant("stats-leave-one-out-keeps-all", "svrpo/analysis/aggregate.py",
+    Mutant("stats-leave-one-out-keeps-all", "svrpo/analysis/aggregate_report.py",
            "[r for r in main if r is not runs]", "list(main)",
            "'without TASK' leaves no task out", STATISTICS_TESTS),
-    Mutant("stats-eval-reading-uses-training", "svrpo/analysis/aggregate.py",
+    Mutant("stats-eval-reading-uses-training", "svrpo/analysis/aggregate_report.py",
            "task_runs(returns, tasks, presets, last_value_scores, evals)",
            "task_runs(returns, tasks, presets, last_value_scores)",
            "the evaluation reading reads the training returns", STATISTICS_TESTS),

@@ -38,12 +38,11 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from svrpo.analysis.aggregate import (  # noqa: E402
-    REFERENCE,
+from svrpo.analysis.aggregate import REFERENCE, probability_bootstrap  # noqa: E402
+from svrpo.analysis.aggregate_report import (  # noqa: E402
     aggregate_report,
     area_scores,
     last_value_scores,
-    probability_bootstrap,
     window_scores,
 )
 from svrpo.analysis.plotting import RunCurve, common_length, load_curve  # noqa: E402

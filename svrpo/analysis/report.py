@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from svrpo.analysis.aggregate import aggregate_report, write_aggregate
+from svrpo.analysis.aggregate_report import aggregate_report, write_aggregate
 from svrpo.analysis.plotting import RunCurve, load_curve, plot_panels
 from svrpo.analysis.table import summarize, write_csv, write_markdown
 

@@ -10,16 +10,15 @@ import pytest
 
 from svrpo.analysis.aggregate import (
     TaskRuns,
-    aggregate_report,
     iqm,
     normalised,
     normalised_iqm_bootstrap,
     probability_bootstrap,
     probability_of_improvement,
-    untrained_return,
-    write_aggregate,
 )
+from svrpo.analysis.aggregate_report import aggregate_report, write_aggregate
 from svrpo.analysis.plotting import RunCurve
+from svrpo.analysis.table import untrained_return
 
 
 def test_normalised_maps_random_to_0_and_reference_to_1() -> None:
