@@ -71,7 +71,7 @@ QUEUE_TESTS = (
 
 TUNING_TESTS = ("tests/tuning/test_scoring.py", "tests/tuning/test_stages.py",
                 "tests/benchmarks/test_tuning_confirmation.py")
-"""The tests of a trial's score (svrpo/tuning/scoring.py, spec.resolve), of its stages
+"""The tests of a trial's score (svrpo/tuning/scoring.py, space.resolve), of its stages
 (svrpo/tuning/stages.py: the budget in steps, retries) and of the equal-budget
 tuning's confirmation (benchmarks/tuning_confirmation.py: section 6's rule, the specs, the questions)."""
 
@@ -667,10 +667,10 @@ MUTANTS = [
     Mutant("tune-task-score-sum", "svrpo/tuning/scoring.py",
            "for value in values) / len(values)", "for value in values) / len(returns)",
            "a task's score divided by the number of tasks, not of seeds", TUNING_TESTS),
-    Mutant("tune-fraction-of-base", "svrpo/tuning/spec.py",
+    Mutant("tune-fraction-of-base", "svrpo/tuning/space.py",
            "whole = values.get(param.of, getattr(base, param.of))", "whole = getattr(base, param.of)",
            "a fraction reads the preset's base value, not the trial's searched one", TUNING_TESTS),
-    Mutant("tune-fraction-truncated", "svrpo/tuning/spec.py",
+    Mutant("tune-fraction-truncated", "svrpo/tuning/space.py",
            "max(1, round(share))", "int(share)",
            "a fraction field truncated instead of rounded (and may be 0)", TUNING_TESTS),
     # --- svrpo/tuning/stages.py: a stage's budget in steps ----------------------------------

@@ -7,6 +7,7 @@ so a validator can say `spec.yaml line 12: space.max_kl: low 0.1 >= high 0.01`.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Hashable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -71,3 +72,13 @@ def _collect_lines(node: Any, prefix: KeyPath, lines: dict[KeyPath, int]) -> Non
         for index, item in enumerate(node.value):
             lines[(*prefix, index)] = item.start_mark.line + 1
             _collect_lines(item, (*prefix, index), lines)
+
+
+def is_int(value: Any) -> bool:
+    """Whether a YAML value is an integer (YAML's true/false are Python bools, which are ints)."""
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def is_number(value: Any) -> bool:
+    """Whether a YAML value is a finite number (not a bool, not .nan or .inf)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)

@@ -26,7 +26,8 @@ from svrpo.errors import ConfigError
 from svrpo.experiments.backends import Backend
 from svrpo.rundir.run_lock import LockedError, exclusive_writer, record_holder
 from svrpo.tuning.scoring import task_scores, trial_score
-from svrpo.tuning.spec import SearchParam, TuneSpec, resolve
+from svrpo.tuning.space import SearchParam, resolve
+from svrpo.tuning.spec import TuneSpec
 from svrpo.tuning.stages import TrialWork, train_to, trial_returns
 from svrpo.tuning.storage import make_sampler, trial_directory
 

@@ -1,4 +1,4 @@
-"""svrpo/tuning/scoring.py and spec.resolve against hand-computed values: the final window of a
+"""svrpo/tuning/scoring.py and space.resolve against hand-computed values: the final window of a
 step budget, its fallbacks, the normalised trial score, and a fraction field resolved from the
 trial's own base value."""
 
@@ -10,7 +10,8 @@ import pytest
 
 from svrpo.presets import make_preset
 from svrpo.tuning.scoring import final_window_mean, task_scores, trial_score
-from svrpo.tuning.spec import Objective, Reference, SearchParam, resolve
+from svrpo.tuning.space import SearchParam, resolve
+from svrpo.tuning.spec import Objective, Reference
 
 NAN = math.nan
 

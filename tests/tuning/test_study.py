@@ -98,7 +98,7 @@ def test_a_bad_spec_is_one_line_exit_2_nothing_written(tmp_path: Path, capsys: p
 
 
 def test_the_tiny_spec_loads_with_its_fraction_tied_to_the_searched_field(tmp_path: Path) -> None:
-    from svrpo.tuning.spec import resolve
+    from svrpo.tuning.space import resolve
 
     spec_path = tmp_path / "tiny.yaml"
     spec_path.write_text(TINY)
