@@ -70,10 +70,11 @@ QUEUE_TESTS = (
 
 
 TUNING_TESTS = ("tests/tuning/test_scoring.py", "tests/tuning/test_stages.py",
-                "tests/benchmarks/test_tuning_confirmation.py")
+                "tests/benchmarks/test_tuning_confirmation.py", "tests/benchmarks/test_tuning_summary.py")
 """The tests of a trial's score (svrpo/tuning/scoring.py, space.resolve), of its stages
-(svrpo/tuning/stages.py: the budget in steps, retries) and of the equal-budget
-tuning's confirmation (benchmarks/tuning_confirmation.py: section 6's rule, the specs, the questions)."""
+(svrpo/tuning/stages.py: the budget in steps, retries), of the equal-budget tuning's report
+(benchmarks/tuning_summary.py: steps and CPU seconds per study) and of its confirmation
+(benchmarks/tuning_confirmation.py: section 6's rule, the specs, the questions)."""
 
 GRADIENT_ERROR_TESTS = ("tests/analysis/test_gradient_error.py",)
 """The closed-form tests of the gradient-error measurement (svrpo/analysis/gradient_split.py and
@@ -694,6 +695,18 @@ MUTANTS = [
            'if set(differing_fields(existing, job.config)) == {"total_steps"}:',
            'if "total_steps" in differing_fields(existing, job.config):',
            "config.json rewritten when fields besides total_steps changed", TUNING_TESTS),
+    # --- benchmarks/tuning_summary.py: the studies' cost ------------------------------------
+    Mutant("tune-cost-counts-cut-row", "benchmarks/tuning_summary.py",
+           "itertools.islice(handle, logged + 1)", "itertools.islice(handle, logged + 2)",
+           "a half-written last row's CPU seconds counted", TUNING_TESTS),
+    Mutant("tune-cost-median-all-runs", "benchmarks/tuning_summary.py",
+           "full = [run.cpu_seconds for run in runs if run.trial in complete_numbers]",
+           "full = [run.cpu_seconds for run in runs]",
+           "a pruned trial's short runs in the median of a full run", TUNING_TESTS),
+    Mutant("tune-cost-learner-only", "benchmarks/tuning_summary.py",
+           'cpu = sum(_number(row.get("cpu_learner")) + _number(row.get("cpu_workers")) for row in rows)',
+           'cpu = sum(_number(row.get("cpu_learner")) for row in rows)',
+           "the sampling workers' CPU seconds left out", TUNING_TESTS),
     # --- benchmarks/tuning_confirmation.py: section 6 and the questions ---------------------
     Mutant("confirm-no-tie-rule", "benchmarks/tuning_confirmation.py",
            "if score > best - tie)", "if score >= best)",
