@@ -2,7 +2,7 @@
 and 7): per study, the trials told (complete, pruned, failed), section 6's choice, the
 environment steps its runs sampled and their CPU seconds.
 
-    python benchmarks/tuning_summary.py ROOT [--out results/equal-budget-tuning/tuning.md]
+    python benchmarks/tuning_summary.py ROOT [--out OUT]     # OUT: tuning.md beside PROTOCOL.md
 
 ROOT is a tune root (`svrpo tune --root`, or the carried copy in results/partial-runs/): for each
 method it opens ROOT/<study name>/study.db and reads every run directory under
