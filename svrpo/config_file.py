@@ -22,11 +22,8 @@ from typing import Any
 
 from svrpo.config import Config, coerce_field
 from svrpo.errors import ConfigError
-from svrpo.presets import PRESET_NAMES, SCALES, make_preset
+from svrpo.presets import DEFAULT_ENV, DEFAULT_PRESET, DEFAULT_SCALE, PRESET_NAMES, SCALES, make_preset
 
-DEFAULT_PRESET = "svrpo"
-DEFAULT_SCALE = "modern"
-DEFAULT_ENV = "Hopper-v5"
 _BASE_KEYS = ("preset", "scale")
 
 

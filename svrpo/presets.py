@@ -27,6 +27,11 @@ PRESET_NAMES = ("trpo", "svrpo", "svrpo-loglik", "svrpo-sgd", "svrpo-identity", 
                 "svrpo-storm", "svrpo-page", "svrpo-budgeted", "svrpg", "srvrpg", "stormpg", "svrpg-sgd")
 SCALES: tuple[Scale, ...] = ("paper", "laptop", "modern", "zoo")
 
+DEFAULT_PRESET = "svrpo"
+DEFAULT_ENV = "Hopper-v5"
+DEFAULT_SCALE: Scale = "modern"
+"""What `svrpo train`, a config file, a tune spec and `make_preset` start from when not told."""
+
 # The ablation field of each preset relative to `svrpo`.
 _ABLATIONS: dict[str, dict[str, Any]] = {
     "svrpo": {},
@@ -126,7 +131,7 @@ ZOO_TASK_FIELDS: dict[str, dict[str, Any]] = {
 """rl-zoo's per-task overrides of its MuJoCo defaults (task family -> fields)."""
 
 
-def make_preset(name: str, env_id: str = "Hopper-v5", scale: Scale = "modern") -> Config:
+def make_preset(name: str, env_id: str = DEFAULT_ENV, scale: Scale = DEFAULT_SCALE) -> Config:
     """The named preset for a task and scale, before any command-line overrides.
 
     The default scale is `modern` (sb3-contrib's TRPO settings: an MLP critic, GAE 0.95,

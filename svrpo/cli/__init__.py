@@ -22,7 +22,7 @@ from svrpo.cli import train as train_command
 from svrpo.cli import tune as tune_command
 from svrpo.cli.common import UsageError
 from svrpo.errors import CheckpointError, ConfigError, EnvError, EvaluationError, SpecError
-from svrpo.presets import PRESET_NAMES, SCALES
+from svrpo.presets import DEFAULT_ENV, DEFAULT_PRESET, DEFAULT_SCALE, PRESET_NAMES, SCALES
 from svrpo.rundir.run_files import RunDirectoryError
 from svrpo.rundir.run_lock import LockedError
 
@@ -194,9 +194,9 @@ def make_parser() -> argparse.ArgumentParser:
     fields = commands.add_parser("fields", help="list every config field with its meaning",
                                  description="Every config field (set any of them as --field value), "
                                  "with its type, a preset's value and its docstring.")
-    fields.add_argument("--preset", default="svrpo", choices=PRESET_NAMES)
-    fields.add_argument("--env", default="Hopper-v5")
-    fields.add_argument("--scale", default="modern", choices=SCALES)
+    fields.add_argument("--preset", default=DEFAULT_PRESET, choices=PRESET_NAMES)
+    fields.add_argument("--env", default=DEFAULT_ENV)
+    fields.add_argument("--scale", default=DEFAULT_SCALE, choices=SCALES)
     fields.set_defaults(handler=fields_command.run)
     return parser
 

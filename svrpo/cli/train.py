@@ -13,11 +13,11 @@ from typing import Any
 from svrpo.cli.common import UsageError, parse_overrides
 from svrpo.config import Config, coerce_field
 from svrpo.errors import ConfigError
-from svrpo.presets import make_preset
+from svrpo.presets import DEFAULT_ENV, DEFAULT_PRESET, DEFAULT_SCALE, make_preset
 from svrpo.rundir.run_files import check_claim, check_run_directory_path
 from svrpo.rundir.run_lock import exclusive_writer
 
-_TRAIN_DEFAULTS = {"preset": "svrpo", "env": "Hopper-v5", "scale": "modern", "seed": 0}
+_TRAIN_DEFAULTS = {"preset": DEFAULT_PRESET, "env": DEFAULT_ENV, "scale": DEFAULT_SCALE, "seed": 0}
 """`svrpo train`'s defaults, applied after the check that --resume is not given them too."""
 # A flag of `svrpo train` and the config field it sets: giving both is ambiguous.
 _FLAG_FIELDS = {"env": "env_id", "steps": "total_steps", "seed": "seed"}
