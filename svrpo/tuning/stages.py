@@ -52,9 +52,9 @@ class TrialWork:
         return self.directory / task / f"seed{seed}"
 
 
-
-
 def trial_returns(spec: TuneSpec, work: TrialWork, budget: int) -> dict[str, list[float]]:
+    """Per task, each seed's score at `budget`: the objective's final window of its progress.csv
+    (NaN where nothing fits)."""
     from svrpo.rundir.progress_log import read_progress
 
     returns: dict[str, list[float]] = {}
