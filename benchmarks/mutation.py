@@ -76,6 +76,12 @@ TUNING_TESTS = ("tests/tuning/test_scoring.py", "tests/tuning/test_stages.py",
 (benchmarks/tuning_summary.py: steps and CPU seconds per study) and of its confirmation
 (benchmarks/tuning_confirmation.py: section 6's rule, the specs, the questions)."""
 
+NORMALIZATION_TESTS = ("tests/models/test_normalization.py",)
+"""The reward scaling against a transcription of stable-baselines3's VecNormalize (bit for bit)."""
+
+KL_DIMENSION_TESTS = ("tests/algorithm/test_update_kl_per_dimension.py",)
+"""The trust region on the KL's mean over action dimensions against sb3-contrib's own numbers."""
+
 GRADIENT_ERROR_TESTS = ("tests/analysis/test_gradient_error.py",)
 """The closed-form tests of the gradient-error measurement (svrpo/analysis/gradient_split.py and
 gradient_error.py)."""
@@ -524,6 +530,38 @@ MUTANTS = [
            "percent_of_trpo_wall=100.0 * seconds"
            " / float(_wall_curve(wall[task][preset], curves.shape[1])[-1]))",
            "wall-clock as a share of the preset's own total, not TRPO's", STATISTICS_TESTS),
+    # --- models/normalization.py and the per-dimension KL: rl-zoo's TRPO (issue 38) ----------
+    Mutant("reward-return-undiscounted", "svrpo/models/normalization.py",
+           "returns = self.returns[active] * self.gamma + reward",
+           "returns = self.returns[active] + reward",
+           "the running return of the reward scaling is not discounted", NORMALIZATION_TESTS),
+    Mutant("reward-return-never-reset", "svrpo/models/normalization.py",
+           "self.returns[active] = np.where(episode_end[rows], 0.0, returns)",
+           "self.returns[active] = returns",
+           "the running return carries over the end of an episode", NORMALIZATION_TESTS),
+    Mutant("reward-centred", "svrpo/models/normalization.py",
+           "out[rows] = np.clip(reward.astype(np.float64) / np.sqrt",
+           "out[rows] = np.clip((reward.astype(np.float64) - self.mean) / np.sqrt",
+           "rewards centred as well as scaled (VecNormalize only scales them)", NORMALIZATION_TESTS),
+    Mutant("reward-scaled-before-update", "svrpo/models/normalization.py",
+           "            self.mean, self.var, self.count = merge_moments(self.mean, self.var, self.count, "
+           "*moments)\n"
+           "            out[rows] = np.clip(reward.astype(np.float64) / np.sqrt(self.var + REWARD_EPSILON),\n"
+           "                                -REWARD_CLIP, REWARD_CLIP).astype(np.float32)\n",
+           "            out[rows] = np.clip(reward.astype(np.float64) / np.sqrt(self.var + REWARD_EPSILON),\n"
+           "                                -REWARD_CLIP, REWARD_CLIP).astype(np.float32)\n"
+           "            self.mean, self.var, self.count = merge_moments(self.mean, self.var, self.count, "
+           "*moments)\n",
+           "a step's reward scaled by the variance before that step's update", NORMALIZATION_TESTS),
+    Mutant("moments-no-cross-term", "svrpo/models/normalization.py",
+           "m2 = var * count + batch_var * batch_count + delta * delta * count * batch_count / total",
+           "m2 = var * count + batch_var * batch_count",
+           "merged variance without the between-sample term (Chan et al.'s delta^2 c b / n)",
+           NORMALIZATION_TESTS),
+    Mutant("kl-per-dimension-ignored", "svrpo/algorithm/update.py",
+           "return policy.act_dim if kl_per_action_dimension else 1",
+           "return 1",
+           "kl_per_action_dimension leaves the trust region on the summed KL", KL_DIMENSION_TESTS),
     Mutant("init-head-gets-the-hidden-gain", "svrpo/models/initialization.py",
            "gain = head_gain if index == len(linears) - 1 else hidden_gain",
            "gain = hidden_gain",
@@ -795,6 +833,7 @@ def main() -> None:
         "tests": TESTS, "statistics_tests": list(STATISTICS_TESTS), "report_tests": list(REPORT_TESTS),
         "queue_tests": list(QUEUE_TESTS), "coverage_tests": list(COVERAGE_TESTS),
         "tuning_tests": list(TUNING_TESTS), "gradient_error_tests": list(GRADIENT_ERROR_TESTS),
+        "normalization_tests": list(NORMALIZATION_TESTS), "kl_dimension_tests": list(KL_DIMENSION_TESTS),
         "mutants": len(results),
         "killed": len(results) - len(survivors), "not_killed": survivors, "results": results,
     }
