@@ -23,6 +23,7 @@ PARAM_KINDS: tuple[str, ...] = typing.get_args(ParamKind)
 UNTUNABLE = ("env_id", "seed", "total_steps")
 """Set by the study itself: the task and seed of each run, and total_steps from the budget."""
 
+
 @dataclass(frozen=True)
 class SearchParam:
     """One searched config field."""
@@ -60,6 +61,8 @@ def _field_kind(name: str) -> str:
 
 
 def parse_space(value: Any, overrides: dict[str, Any], fail: Any) -> tuple[SearchParam, ...]:
+    """The spec's `space` mapping as SearchParams; `fail(message, *keys)` makes the one-line error
+    (a field fixed in `overrides` cannot be searched too)."""
     if not isinstance(value, dict) or not value:
         raise fail("space must map config fields to {type: ..., ...}", "space")
     params: list[SearchParam] = []
