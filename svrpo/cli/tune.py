@@ -89,7 +89,7 @@ def _tune_study(spec: TuneSpec, args: argparse.Namespace, backend: Backend, root
     on_told(study)
     try:
         summary = run_study(spec, root, study, backend, target, args.parallel_trials, on_told,
-                                   say=lambda text: bar.write(text, file=sys.stderr))
+                            say=lambda text: bar.write(text, file=sys.stderr))
     except KeyboardInterrupt:
         bar.close()
         print("interrupted: running runs checkpointed; run the same command again to resume",

@@ -9,7 +9,6 @@ from typing import Any
 
 import gymnasium
 import mujoco
-import mujoco.rollout
 import numpy as np
 import torch
 
