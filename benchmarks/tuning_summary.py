@@ -17,8 +17,6 @@ reads the study's scores, which this report repeats.
 from __future__ import annotations
 
 import argparse
-import csv
-import itertools
 import math
 import statistics
 import sys
@@ -30,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import tuning_confirmation as confirmation  # noqa: E402
 
 from svrpo.rundir.completion import PROGRESS_FILE, logged_iterations  # noqa: E402
+from svrpo.rundir.progress_log import read_progress  # noqa: E402
 from svrpo.tuning.spec import load_tune_spec  # noqa: E402
 from svrpo.tuning.storage import STUDY_FILE, TRIALS_DIR  # noqa: E402
 
@@ -52,19 +51,15 @@ def run_cost(run_dir: Path, trial: int) -> RunCost:
     a last row cut short by a killed writer is not counted."""
     progress = run_dir / PROGRESS_FILE
     logged = logged_iterations(progress)
-    rows: list[dict[str, str]] = []
-    if logged:
-        with open(progress, newline="") as handle:
-            rows = list(csv.DictReader(itertools.islice(handle, logged + 1)))
-    cpu = sum(_number(row.get("cpu_learner")) + _number(row.get("cpu_workers")) for row in rows)
-    steps = int(float(rows[-1]["env_steps"])) if rows else 0
+    rows = read_progress(progress, limit=logged) if logged else []
+    cpu = sum(_seconds(row.get("cpu_learner")) + _seconds(row.get("cpu_workers")) for row in rows)
+    steps = int(rows[-1]["env_steps"]) if rows else 0
     return RunCost(trial, run_dir.parent.name, int(run_dir.name.removeprefix("seed")), steps, cpu)
 
 
-def _number(cell: str | None) -> float:
+def _seconds(value: float | None) -> float:
     """A progress.csv cell as seconds: an empty or non-finite cell (not measured) counts 0."""
-    value = float(cell) if cell else math.nan
-    return value if math.isfinite(value) else 0.0
+    return value if value is not None and math.isfinite(value) else 0.0
 
 
 def study_runs(study_dir: Path) -> list[RunCost]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import math
 import os
 import sys
@@ -81,14 +82,15 @@ def _iteration(cell: str) -> int | float:
         return math.inf
 
 
-def read_progress(path: Path) -> list[dict[str, float]]:
+def read_progress(path: Path, limit: int | None = None) -> list[dict[str, float]]:
     """progress.csv as a list of rows of floats (empty cells become nan); ValueError naming the
     line for a row cut short or overlong (a file damaged or cut mid-row) or a cell that is no
-    number, so a damaged file is never drawn as a blank or one-point curve."""
+    number, so a damaged file is never drawn as a blank or one-point curve. `limit`: only the
+    first `limit` rows (with completion.logged_iterations: those a killed writer left whole)."""
     rows: list[dict[str, float]] = []
     with open(path, newline="") as handle:
         reader = csv.DictReader(handle)
-        for row in reader:
+        for row in itertools.islice(reader, limit):
             if None in row or None in row.values():
                 cells = sum(value is not None for key, value in row.items() if key is not None)
                 cells += len(row.get(None) or [])

@@ -10,8 +10,6 @@ training resumes from the stage's last checkpoint exactly as if it had never sto
 
 from __future__ import annotations
 
-import csv
-import itertools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -112,12 +110,12 @@ def logged_steps(progress: Path) -> tuple[int, int]:
     """(k, s_k): the complete iterations `progress` logs and the environment steps they sampled
     ((0, 0) without the file). A last row cut short by a killed writer is not counted: the run
     resumes from its checkpoint before it."""
+    from svrpo.rundir.progress_log import read_progress
+
     done = logged_iterations(progress)
     if done == 0:
         return 0, 0
-    with open(progress, newline="") as handle:
-        row = next(itertools.islice(csv.DictReader(handle), done - 1, None))
-    return done, int(float(row["env_steps"]))
+    return done, int(read_progress(progress, limit=done)[-1]["env_steps"])
 
 
 def _extend(job: RunJob) -> None:
