@@ -46,9 +46,10 @@ from svrpo.analysis.aggregate_report import (  # noqa: E402
     window_scores,
 )
 from svrpo.analysis.plotting import RunCurve, common_length, load_curve  # noqa: E402
-from svrpo.analysis.table import FINAL_FRACTION, t_interval  # noqa: E402
+from svrpo.analysis.table import FINAL_FRACTION, cpu_per_run, t_interval  # noqa: E402
 from svrpo.experiments.specs import ExperimentSpec, load_spec  # noqa: E402
 from svrpo.rundir.completion import is_finished  # noqa: E402
+from svrpo.rundir.progress_log import CPU_SECONDS  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 CONFIRMATION_SEEDS = list(range(100, 110))
@@ -187,13 +188,6 @@ def steps_per_iteration(runs: Sequence[RunCurve]) -> float:
     return float(np.mean([r.env_steps[length - 1] / length for r in runs]))
 
 
-def cpu_per_run(learner: Sequence[RunCurve], workers: Sequence[RunCurve]) -> float:
-    """Median over runs of the summed cpu_learner + cpu_workers (NaN if a run lacks them)."""
-    totals = [float(np.sum(a.values.astype(np.float64) + b.values.astype(np.float64)))
-              for a, b in zip(learner, workers, strict=True)]
-    return float(np.median(totals)) if all(math.isfinite(t) for t in totals) else math.nan
-
-
 def wall_per_run(wall: Sequence[RunCurve]) -> float:
     """Median over runs of the wall-clock at the last iteration (NaN if a run lacks it)."""
     finals = [float(r.values[-1]) if len(r.values) else math.nan for r in wall]
@@ -239,7 +233,7 @@ def compare(groups: Groups, reference: str, resamples: int = 2000
     returns = curves(groups, reference, "average_return")
     evals = curves(groups, reference, "eval_return")
     kl = curves(groups, reference, "mean_kl")
-    learner, workers = curves(groups, reference, "cpu_learner"), curves(groups, reference, "cpu_workers")
+    cpu_curves = curves(groups, reference, CPU_SECONDS)
     wall = curves(groups, reference, "wall_time")
 
     lines = ["| task | configuration | n | final return [95% CI] | final deterministic eval [95% CI] | "
@@ -252,7 +246,7 @@ def compare(groups: Groups, reference: str, resamples: int = 2000
             finals, aucs = window_scores(task_runs), area_scores(task_runs)
             final_evals = last_value_scores(evals[task][key])
             kl_moved = float(np.nanmean(run_medians(kl[task][key])))
-            cpu = cpu_per_run(learner[task][key], workers[task][key])
+            cpu = cpu_per_run(cpu_curves[task][key])
             seconds = wall_per_run(wall[task][key])
             name = shown(key, reference)
             per_task[task][name] = {"final_return": finals.tolist(), "final_eval": final_evals.tolist(),
@@ -545,6 +539,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     screening = SCREENINGS[args.experiment]
     out = args.out_dir or RESULTS / screening.experiment
+    out.mkdir(parents=True, exist_ok=True)
     if args.confirmation:
         try:
             lines, summary = confirmation_report(screening, args.runs)

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import tuning_confirmation as confirmation  # noqa: E402
 
 from svrpo.rundir.completion import PROGRESS_FILE, logged_iterations  # noqa: E402
-from svrpo.rundir.progress_log import read_progress  # noqa: E402
+from svrpo.rundir.progress_log import cpu_seconds, read_progress  # noqa: E402
 from svrpo.tuning.spec import load_tune_spec  # noqa: E402
 from svrpo.tuning.storage import STUDY_FILE, TRIALS_DIR  # noqa: E402
 
@@ -43,7 +43,7 @@ class RunCost:
     steps: int
     """env_steps of its last logged row (0 without one)."""
     cpu_seconds: float
-    """Sum over its rows of cpu_learner + cpu_workers (empty cells count 0)."""
+    """Sum over its rows of progress_log.cpu_seconds (a row without them counts 0)."""
 
 
 def run_cost(run_dir: Path, trial: int) -> RunCost:
@@ -52,14 +52,9 @@ def run_cost(run_dir: Path, trial: int) -> RunCost:
     progress = run_dir / PROGRESS_FILE
     logged = logged_iterations(progress)
     rows = read_progress(progress, limit=logged) if logged else []
-    cpu = sum(_seconds(row.get("cpu_learner")) + _seconds(row.get("cpu_workers")) for row in rows)
+    cpu = sum(seconds for row in rows if math.isfinite(seconds := cpu_seconds(row)))
     steps = int(rows[-1]["env_steps"]) if rows else 0
     return RunCost(trial, run_dir.parent.name, int(run_dir.name.removeprefix("seed")), steps, cpu)
-
-
-def _seconds(value: float | None) -> float:
-    """A progress.csv cell as seconds: an empty or non-finite cell (not measured) counts 0."""
-    return value if value is not None and math.isfinite(value) else 0.0
 
 
 def study_runs(study_dir: Path) -> list[RunCost]:

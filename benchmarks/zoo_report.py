@@ -36,7 +36,7 @@ import anchor_table  # noqa: E402
 from svrpo.analysis.aggregate import probability_bootstrap  # noqa: E402
 from svrpo.analysis.table import t_interval  # noqa: E402
 from svrpo.rundir.completion import is_finished  # noqa: E402
-from svrpo.rundir.progress_log import read_progress  # noqa: E402
+from svrpo.rundir.progress_log import cpu_seconds, read_progress  # noqa: E402
 
 TASKS = ("Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
 ZOO, RAW = "zoo-trpo-zoo", "zoo-trpo-raw-rewards-zoo"
@@ -90,7 +90,7 @@ def arm_seeds(root: Path, experiment: str, task: str) -> list[Seed]:
     for seed_dir in seed_dirs(root, experiment, task):
         rows = read_progress(seed_dir / "progress.csv")
         config = json.loads((seed_dir / "config.json").read_text())
-        cpu = sum(row["cpu_learner"] + row["cpu_workers"] for row in rows)
+        cpu = sum(cpu_seconds(row) for row in rows)
         seeds.append(Seed(int(config["seed"]), rows[-1]["eval_return"],
                           anchor_table.last_tenth_of_iterations([row["average_return"] for row in rows]),
                           eval150_mean(root / EVAL_DIR / experiment / task / f"{seed_dir.name}.txt"), cpu))

@@ -32,7 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from svrpo.analysis.table import t_interval  # noqa: E402
-from svrpo.rundir.progress_log import read_progress  # noqa: E402
+from svrpo.rundir.progress_log import cpu_seconds, read_progress  # noqa: E402
 
 FIRST, LAST = 2, 48
 """Iterations averaged: the first carries process start-up, the 49th the final evaluation."""
@@ -69,7 +69,7 @@ def run_cost(rows: Rows, first: int | None = None, last: int | None = None) -> R
         raise ValueError(f"an evaluation falls within iterations {first}..{last}")
     increments = _increments(rows)
     wall = float(np.mean([increments[int(row["iteration"])] for row in window]))
-    cpu = float(np.mean([row["cpu_learner"] + row["cpu_workers"] for row in window]))
+    cpu = float(np.mean([cpu_seconds(row) for row in window]))
     return RunCost(wall, cpu)
 
 

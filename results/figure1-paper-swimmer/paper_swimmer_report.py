@@ -31,7 +31,6 @@ curves stop climbing and how many seeds carry it.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import sys
 from collections.abc import Sequence
@@ -56,7 +55,7 @@ from svrpo.analysis.table import (  # noqa: E402
     summarize,
 )
 from svrpo.rundir.completion import is_finished  # noqa: E402
-from svrpo.rundir.progress_log import read_progress  # noqa: E402
+from svrpo.rundir.progress_log import CPU_SECONDS, read_progress  # noqa: E402
 
 TASK = "Swimmer-v5"
 PRESETS = ("svrpo", "svrpo-loglik", "trpo")
@@ -166,19 +165,6 @@ def _curves(task_dir: Path, seeds: Sequence[int], metric: str) -> dict[str, list
             for preset in PRESETS}
 
 
-def _cpu(task_dir: Path, seeds: Sequence[int]) -> dict[str, list[RunCurve]]:
-    """CPU seconds per iteration (cpu_learner + cpu_workers), as the figure1 report reads them."""
-    out: dict[str, list[RunCurve]] = {}
-    for preset in PRESETS:
-        out[preset] = []
-        for seed in seeds:
-            run_dir = task_dir / preset / f"seed{seed}"
-            learner, workers = load_curve(run_dir, "cpu_learner"), load_curve(run_dir, "cpu_workers")
-            out[preset].append(dataclasses.replace(
-                learner, values=learner.values.astype(np.float64) + workers.values.astype(np.float64)))
-    return out
-
-
 @dataclass(frozen=True)
 class Scale:
     """One scale's numbers."""
@@ -209,7 +195,8 @@ def read_scale(runs: Path, label: str, experiment: str) -> Scale | None:
     returns = _curves(task_dir, seeds, "average_return")
     rows = summarize({TASK: returns}, {TASK: _curves(task_dir, seeds, "variance_ratio")},
                      {TASK: _curves(task_dir, seeds, "eval_return")},
-                     {TASK: _curves(task_dir, seeds, "wall_time")}, {TASK: _cpu(task_dir, seeds)})
+                     {TASK: _curves(task_dir, seeds, "wall_time")},
+                     {TASK: _curves(task_dir, seeds, CPU_SECONDS)})
     smoothed = {preset: smoothed_seeds(curves)[1] for preset, curves in returns.items()}
     env_steps = smoothed_seeds(returns["trpo"])[0]
     finals = {preset: [float(v) for v in curves[:, -1]] for preset, curves in smoothed.items()}

@@ -20,7 +20,7 @@ from typing import Literal
 import numpy as np
 
 from svrpo.presets import PRESET_NAMES
-from svrpo.rundir.progress_log import read_progress
+from svrpo.rundir.progress_log import CPU_SECONDS, cpu_seconds, read_progress
 
 # The same preset keeps its colour in every figure (the paper draws SVRPO red, TRPO blue).
 _COLOR_CYCLE = ("tab:blue", "tab:red", "tab:orange", "tab:green", "tab:purple", "tab:brown",
@@ -63,7 +63,8 @@ def find_run_dirs(paths: list[Path]) -> list[Path]:
 
 
 def load_curve(run_dir: Path, metric: str = "average_return") -> RunCurve:
-    """Read one run directory; a metric the run did not log reads as NaN."""
+    """Read one run directory; a metric the run did not log reads as NaN, and CPU_SECONDS reads
+    each row's cpu_seconds."""
     config = json.loads((run_dir / "config.json").read_text())
     meta_path = run_dir / "run.json"
     meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
@@ -75,7 +76,8 @@ def load_curve(run_dir: Path, metric: str = "average_return") -> RunCurve:
         label=str(meta.get("preset", run_dir.name)),
         seed=int(config["seed"]),
         env_steps=np.array([row["env_steps"] for row in rows]),
-        values=np.array([row.get(metric, math.nan) for row in rows]),
+        values=np.array([cpu_seconds(row) if metric == CPU_SECONDS else row.get(metric, math.nan)
+                         for row in rows]),
         experiment=None if experiment is None else str(experiment),
         scale=None if scale is None else str(scale),
     )

@@ -5,7 +5,6 @@ the experiments' definitions sit a layer above."""
 
 from __future__ import annotations
 
-import dataclasses
 import os
 from collections import defaultdict
 from collections.abc import Sequence
@@ -16,6 +15,7 @@ import numpy as np
 from svrpo.analysis.aggregate_report import aggregate_report, write_aggregate
 from svrpo.analysis.plotting import RunCurve, load_curve, plot_panels
 from svrpo.analysis.table import summarize, write_csv, write_markdown
+from svrpo.rundir.progress_log import CPU_SECONDS
 
 REPORT_FILES = ("returns.png", "variance_ratio.png", "estimator_error_ratio.png", "table.md", "table.csv",
                 "aggregate.md", "aggregate.json")
@@ -80,7 +80,7 @@ def write_report(experiment: str, scale: str, run_dirs: Sequence[Path], out_dir:
                                        log_scale=True, title=title, reference=1.0))
     evals = nested([load_curve(d, "eval_return") for d in run_dirs])
     wall = nested([load_curve(d, "wall_time") for d in run_dirs])
-    cpu = nested([_cpu_curve(d) for d in run_dirs])
+    cpu = nested([load_curve(d, CPU_SECONDS) for d in run_dirs])
     rows = summarize(returns, variance, evals, wall, cpu)
     written.append(write_markdown(rows, out_dir / "table.md", f"{title}: final return and samples "
                                   "to reach TRPO's final return"))
@@ -89,13 +89,6 @@ def write_report(experiment: str, scale: str, run_dirs: Sequence[Path], out_dir:
     if summary is not None:
         written += write_aggregate(summary, out_dir, title)
     return written
-
-
-def _cpu_curve(run_dir: Path) -> RunCurve:
-    """CPU seconds per iteration: cpu_learner + cpu_workers (NaN where not recorded)."""
-    learner, workers = load_curve(run_dir, "cpu_learner"), load_curve(run_dir, "cpu_workers")
-    return dataclasses.replace(learner, values=learner.values.astype(np.float64)
-                               + workers.values.astype(np.float64))
 
 
 def _nested(curves: Sequence[RunCurve], task_order: Sequence[str], preset_order: Sequence[str]) -> Nested:

@@ -195,10 +195,10 @@ def summarize(returns: Curves, variance: Curves | None = None, evals: Curves | N
     return rows
 
 
-def cpu_per_run(runs: Sequence[RunCurve], length: int) -> float:
+def cpu_per_run(runs: Sequence[RunCurve], length: int | None = None) -> float:
     """Median over seeds of each run's summed per-iteration CPU seconds over its first `length`
-    iterations; NaN if any of those iterations has none recorded (a run older than the column,
-    or resumed from one)."""
+    iterations (None: all of them); NaN if any of those iterations has none recorded (a run older
+    than the column, or resumed from one)."""
     totals = [float(np.sum(run.values[:length].astype(np.float64))) for run in runs]
     totals = [total for total in totals if math.isfinite(total)]
     return float(np.median(totals)) if totals and len(totals) == len(runs) else math.nan

@@ -8,6 +8,7 @@ import itertools
 import math
 import os
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,17 @@ _NAMESPACE_COLUMNS = {
              "cpu_workers"),
     "eval": ("eval_return",),
 }
+CPU_SECONDS = "cpu_seconds"
+"""Not a column but read as one (svrpo.analysis.plotting.load_curve's metric of that name): an
+iteration's CPU seconds, `cpu_seconds(row)`."""
+
+
+def cpu_seconds(row: Mapping[str, float]) -> float:
+    """An iteration's CPU seconds, as every report counts them: cpu_learner + cpu_workers (the
+    learner process and its sampling workers, from the OS); NaN where either was not recorded."""
+    return row.get("cpu_learner", math.nan) + row.get("cpu_workers", math.nan)
+
+
 TENSORBOARD_NAMESPACES: dict[str, str] = {column: namespace for namespace, columns in
                                           _NAMESPACE_COLUMNS.items() for column in columns}
 """The TensorBoard tag of each progress.csv column is NAMESPACE/column, grouped as SB3 groups its

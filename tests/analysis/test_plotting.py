@@ -315,3 +315,20 @@ def test_every_preset_has_its_own_colour_and_the_paper_keeps_svrpo_red_trpo_blue
     assert set(PRESET_COLORS) == set(PRESET_NAMES)
     assert len(set(PRESET_COLORS.values())) == len(PRESET_NAMES)
     assert (PRESET_COLORS["svrpo"], PRESET_COLORS["trpo"]) == ("tab:red", "tab:blue")
+
+
+def test_load_curve_reads_cpu_seconds_as_learner_plus_workers_and_nan_where_either_is_missing(
+        tmp_path: Path) -> None:
+    """CPU_SECONDS is no column: each row's cpu_learner + cpu_workers (progress_log.cpu_seconds),
+    the one reading every report's CPU figures come from."""
+    from svrpo.analysis.plotting import load_curve
+    from svrpo.rundir.progress_log import CPU_SECONDS, cpu_seconds
+
+    run_dir = write_run(tmp_path, "Swimmer-v5", "trpo", 0, [1.0, 2.0, 3.0], experiment=None)
+    (run_dir / "progress.csv").write_text("iteration,env_steps,cpu_learner,cpu_workers\n"
+                                          "1,100,1.5,0.25\n2,200,2.0,\n3,300,0.5,4.0\n")
+    curve = load_curve(run_dir, CPU_SECONDS)
+    np.testing.assert_array_equal(curve.values[[0, 2]], [1.75, 4.5])
+    assert math.isnan(curve.values[1])
+    assert math.isnan(cpu_seconds({"cpu_learner": 3.0}))  # the workers' seconds unknown
+    assert cpu_seconds({"cpu_learner": 3.0, "cpu_workers": 0.5, "wall_time": 9.0}) == 3.5

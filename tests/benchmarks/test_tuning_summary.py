@@ -28,11 +28,11 @@ def _progress(run_dir: Path, rows: list[tuple[int, float | str, float | str]], c
 def test_a_runs_cost_sums_its_complete_rows(tmp_path: Path) -> None:
     script = _script()
     run_dir = tmp_path / "trial0003" / "Hopper-v5" / "seed300"
-    # An empty cell (not measured) counts 0; the half-written last row is not counted.
+    # A row with a cell not measured counts 0; the half-written last row is not counted.
     _progress(run_dir, [(1024, 1.5, 0.5), (2048, 2.0, ""), (3072, 0.25, 0.75)], cut=True)
     cost = script.run_cost(run_dir, 3)
     assert (cost.trial, cost.task, cost.seed, cost.steps) == (3, "Hopper-v5", 300, 3072)
-    assert cost.cpu_seconds == 1.5 + 0.5 + 2.0 + 0.25 + 0.75
+    assert cost.cpu_seconds == 1.5 + 0.5 + 0.25 + 0.75
 
 
 def test_a_study_summary_counts_states_choice_steps_and_cpu(tmp_path: Path) -> None:
