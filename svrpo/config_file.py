@@ -22,7 +22,7 @@ from typing import Any
 
 from svrpo.config import Config, coerce_field
 from svrpo.errors import ConfigError
-from svrpo.presets import DEFAULT_ENV, DEFAULT_PRESET, DEFAULT_SCALE, PRESET_NAMES, SCALES, make_preset
+from svrpo.presets import DEFAULT_ENV, DEFAULT_PRESET, PRESET_NAMES, SCALES, default_scale, make_preset
 
 _BASE_KEYS = ("preset", "scale")
 
@@ -58,7 +58,7 @@ def read_config_file(path: str | os.PathLike[str]) -> ConfigFile:
     if preset not in PRESET_NAMES:
         raise ConfigError(f"{document.where('preset')}: unknown preset {preset!r}; choose from "
                           f"{', '.join(PRESET_NAMES)}")
-    scale = data.get("scale", DEFAULT_SCALE)
+    scale = data.get("scale", default_scale(preset))
     if scale not in SCALES:
         raise ConfigError(f"{document.where('scale')}: unknown scale {scale!r}; choose from "
                           f"{', '.join(SCALES)}")

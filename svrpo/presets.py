@@ -29,7 +29,6 @@ SCALES: tuple[Scale, ...] = ("paper", "laptop", "modern", "zoo")
 
 DEFAULT_PRESET = "svrpo"
 DEFAULT_ENV = "Hopper-v5"
-DEFAULT_SCALE: Scale = "modern"
 """What `svrpo train`, a config file, a tune spec and `make_preset` start from when not told."""
 
 # The ablation field of each preset relative to `svrpo`.
@@ -52,6 +51,19 @@ _ABLATIONS: dict[str, dict[str, Any]] = {
 }
 FRESH_PRESET_BASE = "svrpo-budgeted"
 """The preset the fresh-sample presets differ from by the estimator alone."""
+
+
+DEFAULT_SCALES: dict[str, Scale] = {name: "modern" for name in PRESET_NAMES}
+"""Each preset's scale when none is named (`default_scale`): `modern` for every preset until the
+equal-budget tuning's confirmation decides otherwise (results/equal-budget-tuning/PROTOCOL.md,
+section 8 and its 2026-12-06 section: a method's presets move to `tuned` only where its tuned
+configuration beat today's)."""
+
+
+def default_scale(preset: str) -> Scale:
+    """The scale `svrpo train`, `svrpo fields`, a config file, a tune spec and `make_preset` give
+    `preset` when none is named."""
+    return DEFAULT_SCALES.get(preset, "modern")
 
 
 def _task_family(env_id: str) -> str:
@@ -131,8 +143,9 @@ ZOO_TASK_FIELDS: dict[str, dict[str, Any]] = {
 """rl-zoo's per-task overrides of its MuJoCo defaults (task family -> fields)."""
 
 
-def make_preset(name: str, env_id: str = DEFAULT_ENV, scale: Scale = DEFAULT_SCALE) -> Config:
-    """The named preset for a task and scale, before any command-line overrides.
+def make_preset(name: str, env_id: str = DEFAULT_ENV, scale: Scale | None = None) -> Config:
+    """The named preset for a task and scale (None: the preset's `default_scale`), before any
+    command-line overrides.
 
     The default scale is `modern` (sb3-contrib's TRPO settings: an MLP critic, GAE 0.95,
     observation normalisation; max_kl 0.01 on the summed KL, where sb3-contrib's 0.01 bounds the
@@ -147,6 +160,8 @@ def make_preset(name: str, env_id: str = DEFAULT_ENV, scale: Scale = DEFAULT_SCA
         close = difflib.get_close_matches(name, PRESET_NAMES, n=1)
         hint = f" (did you mean {close[0]}?)" if close else ""
         raise ConfigError(f"unknown preset '{name}'{hint}; choose from {', '.join(PRESET_NAMES)}")
+    if scale is None:
+        scale = default_scale(name)
     if scale not in SCALES:
         raise ConfigError(f"unknown scale '{scale}'; choose from {', '.join(SCALES)}")
     fields: dict[str, Any] = {"env_id": env_id, **_scale_fields(scale, env_id)}

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -173,3 +174,49 @@ def test_zoo_scale_is_rl_zoos_trpo_yml_key_by_key(env_id: str) -> None:
     svrpo = make_preset("svrpo", env_id, "zoo")
     assert differing_fields(trpo, svrpo) == {
         "estimator": ("full", "svrg"), "minibatch_size": (1000, 512), "inner_steps": (1, 8)}
+
+
+def test_every_preset_defaults_to_the_modern_scale_today() -> None:
+    """Until the equal-budget tuning's confirmation moves a method to `tuned` (PROTOCOL.md
+    section 8): each preset without a named scale is its modern-scale preset."""
+    from svrpo.presets import DEFAULT_SCALES, default_scale
+
+    assert set(DEFAULT_SCALES) == set(PRESET_NAMES)
+    for name in PRESET_NAMES:
+        assert default_scale(name) == "modern"
+        assert make_preset(name, "Hopper-v5") == make_preset(name, "Hopper-v5", "modern")
+
+
+def test_every_entry_point_without_a_scale_takes_the_presets_default_scale(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """make_preset, `svrpo train`, `svrpo fields`, a config file and a tune spec each read the
+    default scale per preset (one place: presets.DEFAULT_SCALES): trpo moved to `zoo` moves all
+    five for trpo and none for svrpo."""
+    from svrpo.cli import make_parser
+    from svrpo.cli.train import _build_config
+    from svrpo.config_file import read_config_file
+    from svrpo.presets import DEFAULT_SCALES
+    from svrpo.tuning import load_tune_spec
+
+    monkeypatch.setitem(DEFAULT_SCALES, "trpo", "zoo")
+    zoo, modern = make_preset("trpo", "Hopper-v5", "zoo"), make_preset("svrpo", "Hopper-v5", "modern")
+    assert make_preset("trpo", "Hopper-v5") == zoo
+    assert make_preset("svrpo", "Hopper-v5") == modern
+
+    for preset, expected, scale in (("trpo", zoo, "zoo"), ("svrpo", modern, "modern")):
+        args, extra = make_parser().parse_known_args(["train", "--preset", preset, "--env", "Hopper-v5"])
+        assert _build_config(args, extra) == expected and args.scale == scale  # run.json's record
+
+        path = tmp_path / f"{preset}.yaml"
+        path.write_text(f"preset: {preset}\nmax_kl: 0.03\n")
+        loaded = read_config_file(path)
+        assert loaded.scale == scale and loaded.config("Hopper-v5") == expected.replace(max_kl=0.03)
+
+        spec = tmp_path / f"tune-{preset}.yaml"
+        spec.write_text(f"preset: {preset}\ntasks: {{Hopper-v5: 1000}}\nsteps: 4096\ntrials: 1\n"
+                        "space: {max_kl: {type: log_float, low: 0.001, high: 0.1}}\n")
+        assert load_tune_spec(spec).scale == scale
+
+        args, extra = make_parser().parse_known_args(["fields", "--preset", preset, "--env", "Hopper-v5"])
+        args.handler(args, extra)
+        assert f"--max_kl (float; {preset} at {scale} scale: {expected.max_kl!r})" in capsys.readouterr().out

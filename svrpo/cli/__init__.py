@@ -22,7 +22,7 @@ from svrpo.cli import train as train_command
 from svrpo.cli import tune as tune_command
 from svrpo.cli.common import UsageError
 from svrpo.errors import CheckpointError, ConfigError, EnvError, EvaluationError, SpecError
-from svrpo.presets import DEFAULT_ENV, DEFAULT_PRESET, DEFAULT_SCALE, PRESET_NAMES, SCALES
+from svrpo.presets import DEFAULT_ENV, DEFAULT_PRESET, PRESET_NAMES, SCALES
 from svrpo.rundir.run_files import RunDirectoryError
 from svrpo.rundir.run_lock import LockedError
 
@@ -46,7 +46,8 @@ def make_parser() -> argparse.ArgumentParser:
     train.add_argument("--preset", default=None, choices=PRESET_NAMES, help="default svrpo")
     train.add_argument("--env", default=None, help="Gymnasium task id (Box spaces); default Hopper-v5")
     train.add_argument("--scale", default=None, choices=SCALES,
-                       help="default modern (sb3-contrib's TRPO settings); laptop and paper: the paper's")
+                       help="default: the preset's (modern: sb3-contrib's TRPO settings); laptop and "
+                       "paper: the paper's; zoo: rl-baselines3-zoo's tuned TRPO")
     train.add_argument("--steps", type=int, default=None,
                        help="total environment steps (with --resume: extend the run to this many)")
     train.add_argument("--seed", type=int, default=None, help="default 0")
@@ -196,7 +197,7 @@ def make_parser() -> argparse.ArgumentParser:
                                  "with its type, a preset's value and its docstring.")
     fields.add_argument("--preset", default=DEFAULT_PRESET, choices=PRESET_NAMES)
     fields.add_argument("--env", default=DEFAULT_ENV)
-    fields.add_argument("--scale", default=DEFAULT_SCALE, choices=SCALES)
+    fields.add_argument("--scale", default=None, choices=SCALES, help="default: the preset's")
     fields.set_defaults(handler=fields_command.run)
     return parser
 

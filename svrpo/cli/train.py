@@ -13,12 +13,13 @@ from typing import Any
 from svrpo.cli.common import UsageError, parse_overrides
 from svrpo.config import Config, coerce_field
 from svrpo.errors import ConfigError
-from svrpo.presets import DEFAULT_ENV, DEFAULT_PRESET, DEFAULT_SCALE, make_preset
+from svrpo.presets import DEFAULT_ENV, DEFAULT_PRESET, default_scale, make_preset
 from svrpo.rundir.run_files import check_claim, check_run_directory_path
 from svrpo.rundir.run_lock import exclusive_writer
 
-_TRAIN_DEFAULTS = {"preset": DEFAULT_PRESET, "env": DEFAULT_ENV, "scale": DEFAULT_SCALE, "seed": 0}
-"""`svrpo train`'s defaults, applied after the check that --resume is not given them too."""
+_TRAIN_DEFAULTS = {"preset": DEFAULT_PRESET, "env": DEFAULT_ENV, "seed": 0}
+"""`svrpo train`'s defaults, applied after the check that --resume is not given them too (and
+the scale: the preset's default_scale)."""
 # A flag of `svrpo train` and the config field it sets: giving both is ambiguous.
 _FLAG_FIELDS = {"env": "env_id", "steps": "total_steps", "seed": "seed"}
 
@@ -35,6 +36,8 @@ def _build_config(args: argparse.Namespace, extra: list[str]) -> Config:
         for name, value in _TRAIN_DEFAULTS.items():
             if getattr(args, name) is None:
                 setattr(args, name, value)
+        if args.scale is None:
+            args.scale = default_scale(args.preset)
         config = make_preset(args.preset, overrides.pop("env_id", args.env), args.scale)
     changes: dict[str, Any] = {"seed": args.seed}
     if args.steps is not None:

@@ -36,7 +36,7 @@ from typing import Any, Literal
 
 from svrpo.config import Config, coerce_field
 from svrpo.errors import ConfigError, SpecError
-from svrpo.presets import DEFAULT_SCALE, PRESET_NAMES, SCALES, make_preset
+from svrpo.presets import PRESET_NAMES, SCALES, default_scale, make_preset
 from svrpo.tuning.space import UNTUNABLE, SearchParam, parse_space
 from svrpo.yaml_input import YamlDocument, is_int, is_number, read_yaml
 
@@ -143,7 +143,7 @@ def tune_spec_from_document(document: YamlDocument, default_name: str = "study")
     preset = data["preset"]
     if preset not in PRESET_NAMES:
         raise fail(f"unknown preset {preset!r}; choose from {', '.join(PRESET_NAMES)}", "preset")
-    scale = data.get("scale", DEFAULT_SCALE)
+    scale = data.get("scale", default_scale(preset))
     if scale not in SCALES:
         raise fail(f"unknown scale {scale!r}; choose from {', '.join(SCALES)}", "scale")
     tasks = _tasks(data["tasks"], fail)
