@@ -753,6 +753,10 @@ MUTANTS = [
            "cpu = sum(seconds for row in rows if math.isfinite(seconds := cpu_seconds(row)))",
            "cpu = sum(cpu_seconds(row) for row in rows)",
            "a row without CPU seconds makes the run's cost NaN instead of counting 0", TUNING_TESTS),
+    Mutant("tune-figure-best-counts-pruned", "benchmarks/tuning_summary.py",
+           'if point.state == "COMPLETE" and (math.isnan(best) or point.score > best):',
+           "if math.isnan(best) or point.score > best:",
+           "the figure's best so far takes a pruned trial's intermediate score", TUNING_TESTS),
     # --- benchmarks/tuning_confirmation.py: section 6 and the questions ---------------------
     Mutant("confirm-no-tie-rule", "benchmarks/tuning_confirmation.py",
            "if score > best - tie)", "if score >= best)",

@@ -4,6 +4,10 @@ environment steps its runs sampled and their CPU seconds.
 
     python benchmarks/tuning_summary.py ROOT [--out OUT]     # OUT: tuning.md beside PROTOCOL.md
 
+With --out it also draws OUT's tuning.png beside it: each study's trial scores against the trial
+number (a pruned trial at the last intermediate score it reported) with the best complete score so
+far, and that best against the CPU core-hours the study had spent.
+
 ROOT is a tune root (`svrpo tune --root`, or the carried copy in results/partial-runs/): for each
 method it opens ROOT/<study name>/study.db and reads every run directory under
 ROOT/<study name>/trials/. A run's CPU seconds are the sum over its progress.csv rows of
@@ -22,6 +26,7 @@ import statistics
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -68,6 +73,30 @@ def study_runs(study_dir: Path) -> list[RunCost]:
 
 
 @dataclass(frozen=True)
+class TrialPoint:
+    """One trial of a study, for the figure."""
+
+    number: int
+    state: str
+    """Optuna's state name (COMPLETE, PRUNED, FAIL, RUNNING)."""
+    score: float
+    """A complete trial's score; a pruned one's last intermediate score; NaN otherwise."""
+    cpu_seconds: float
+    """Its runs' CPU seconds (RunCost.cpu_seconds summed)."""
+
+
+def best_so_far(points: list[TrialPoint]) -> list[float]:
+    """The highest complete score among the trials up to each one, in trial order (NaN before
+    the first complete trial)."""
+    best, out = math.nan, []
+    for point in sorted(points, key=lambda p: p.number):
+        if point.state == "COMPLETE" and (math.isnan(best) or point.score > best):
+            best = point.score
+        out.append(best)
+    return out
+
+
+@dataclass(frozen=True)
 class StudySummary:
     method: str
     study: str
@@ -81,6 +110,8 @@ class StudySummary:
     cpu_seconds: float
     full_run_cpu_median: float
     """Median CPU seconds of the runs of complete trials (each sampled its whole budget); NaN if none."""
+    trials: tuple[TrialPoint, ...] = ()
+    """Every trial, by number."""
 
 
 def summarise(method: str, root: Path) -> StudySummary:
@@ -106,8 +137,59 @@ def summarise(method: str, root: Path) -> StudySummary:
     runs = study_runs(directory)
     complete_numbers = {number for number, _ in complete}
     full = [run.cpu_seconds for run in runs if run.trial in complete_numbers]
+    points = tuple(TrialPoint(t.number, t.state.name, _trial_score(t),
+                              sum(r.cpu_seconds for r in runs if r.trial == t.number))
+                   for t in sorted(trials, key=lambda t: t.number))
     return StudySummary(method, spec.name, states, chosen, best, len(runs), sum(r.steps for r in runs),
-                        sum(r.cpu_seconds for r in runs), statistics.median(full) if full else math.nan)
+                        sum(r.cpu_seconds for r in runs), statistics.median(full) if full else math.nan,
+                        points)
+
+
+def _trial_score(trial: Any) -> float:
+    """A complete trial's value, a pruned one's last intermediate score, else NaN."""
+    if trial.state.name == "COMPLETE":
+        return float(trial.value)
+    if trial.state.name == "PRUNED" and trial.intermediate_values:
+        return float(trial.intermediate_values[max(trial.intermediate_values)])
+    return math.nan
+
+
+def write_figure(summaries: list[StudySummary], path: Path) -> Path:
+    """tuning.png: per study, its trials' scores by trial number with the best so far, and the
+    best so far against the CPU core-hours spent (trials in number order)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from svrpo.analysis.plotting import PRESET_COLORS
+
+    figure, (by_trial, by_cpu) = plt.subplots(1, 2, figsize=(11, 4))
+    for s in summaries:
+        color = PRESET_COLORS.get(s.method, "black")
+        points = sorted(s.trials, key=lambda p: p.number)
+        complete = [p for p in points if p.state == "COMPLETE"]
+        pruned = [p for p in points if p.state == "PRUNED"]
+        best = best_so_far(list(points))
+        by_trial.plot([p.number for p in complete], [p.score for p in complete], "o", color=color)
+        by_trial.plot([p.number for p in pruned], [p.score for p in pruned], "x", color=color, alpha=0.6)
+        by_trial.step([p.number for p in points], best, where="post", color=color, label=s.method)
+        hours, spent = [], 0.0
+        for point in points:
+            spent += point.cpu_seconds / 3600
+            hours.append(spent)
+        by_cpu.step(hours, best, where="post", color=color, label=s.method)
+    by_trial.set(xlabel="trial", ylabel="score (normalised final return, mean over tasks)",
+                 title="trials (o complete, x pruned at its last report) and the best so far")
+    by_cpu.set(xlabel="CPU core-hours spent by the study", ylabel="best complete score so far",
+               title="the best so far against the tuning's cost")
+    for axes in (by_trial, by_cpu):
+        axes.grid(alpha=0.3)
+        axes.legend()
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
 
 
 def render(summaries: list[StudySummary], trials_per_study: int) -> str:
@@ -143,6 +225,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.out is not None:
         args.out.write_text(text)
         print(f"wrote {args.out}")
+        print(f"wrote {write_figure(summaries, args.out.with_name('tuning.png'))}")
 
 
 if __name__ == "__main__":

@@ -53,6 +53,17 @@ def test_a_study_summary_counts_states_choice_steps_and_cpu(tmp_path: Path) -> N
     # Only the complete trial's runs (trial 0: 100 and 80 s) make the median of a full run; the
     # pruned trial's 10 s would make it 80.
     assert summary.full_run_cpu_median == 90.0
+    # The figure's points: a pruned trial at its last intermediate score (5.0), the running trial
+    # without one; each trial's CPU seconds from its own runs.
+    assert [(p.number, p.state, p.cpu_seconds) for p in summary.trials] == [
+        (0, "COMPLETE", 180.0), (1, "COMPLETE", 0.0), (2, "PRUNED", 10.0), (3, "COMPLETE", 0.0),
+        (4, "RUNNING", 0.0)]
+    scores = [p.score for p in summary.trials]
+    assert scores[:4] == [0.5, 0.895, 5.0, 0.9] and math.isnan(scores[4])
+    # The best so far counts complete trials only (the pruned trial's 5.0 is an intermediate).
+    assert script.best_so_far(list(summary.trials)) == [0.5, 0.895, 0.895, 0.9, 0.9]
+    figure = script.write_figure([summary], tmp_path / "tuning.png")
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     text = script.render([summary], 20)
     row = next(line for line in text.splitlines() if line.startswith("| trpo |"))
     cells = [cell.strip() for cell in row.strip("|").split("|")]
