@@ -29,7 +29,7 @@ Surrogate = Literal["ratio", "loglik"]
 KlAnchor = Literal["sampling", "iterate", "budgeted"]
 InnerStop = Literal["all", "failed_search"]
 BaselineKind = Literal["linear", "mlp"]
-Scale = Literal["paper", "laptop", "modern", "zoo"]
+Scale = Literal["paper", "laptop", "modern", "zoo", "tuned"]
 WeightInit = Literal["torch", "orthogonal"]
 
 

@@ -2,7 +2,7 @@
 
 `make_preset(name, env_id, scale)` is the config a run starts from; the CLI and config files
 override its fields by name. The presets differ by one ablation field from `svrpo` (_ABLATIONS);
-the scales (paper, laptop, modern, zoo) set the batch sizes, networks and baselines.
+the scales (paper, laptop, modern, zoo, tuned) set the batch sizes, networks and baselines.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ _DEEP_TASKS = ("Ant", "Humanoid")
 
 PRESET_NAMES = ("trpo", "svrpo", "svrpo-loglik", "svrpo-sgd", "svrpo-identity", "svrpo-sarah",
                 "svrpo-storm", "svrpo-page", "svrpo-budgeted", "svrpg", "srvrpg", "stormpg", "svrpg-sgd")
-SCALES: tuple[Scale, ...] = ("paper", "laptop", "modern", "zoo")
+SCALES: tuple[Scale, ...] = ("paper", "laptop", "modern", "zoo", "tuned")
 
 DEFAULT_PRESET = "svrpo"
 DEFAULT_ENV = "Hopper-v5"
@@ -76,6 +76,8 @@ def _scale_fields(scale: Scale, env_id: str) -> dict[str, Any]:
         return dict(MODERN_FIELDS)
     if scale == "zoo":
         return {**ZOO_FIELDS, **ZOO_TASK_FIELDS.get(family, {})}
+    if scale == "tuned":
+        return {**MODERN_FIELDS, "total_steps": TUNED_STEPS}
     if scale == "paper":
         m, j, iterations = PAPER_INNER.get(family, (5000, 20, 1000))
         return {
@@ -143,6 +145,37 @@ ZOO_TASK_FIELDS: dict[str, dict[str, Any]] = {
 """rl-zoo's per-task overrides of its MuJoCo defaults (task family -> fields)."""
 
 
+# The tuned scale: issue 38's equal-budget tuning (results/equal-budget-tuning/PROTOCOL.md), each
+# method's trial chosen by the protocol's section 6 (confirmation/selection.json), over the modern
+# scale; the values are the trials' own, unrounded, so that this scale is what the confirmation ran.
+TUNED_FIELDS: dict[str, dict[str, Any]] = {
+    # ebt-trpo trial 10 (score 1.427)
+    "trpo": {"max_kl": 0.05450249177418502, "batch_size": 2048, "gae_lambda": 0.9089726363546324,
+        "baseline_lr": 0.0019340324451703906, "baseline_epochs": 17, "cg_damping": 0.08328293534626303,
+        "normalize_rewards": False},
+    # ebt-svrpo trial 4 (score 1.263)
+    "svrpo": {"max_kl": 0.09059512563442661, "batch_size": 2048, "gae_lambda": 0.9216089495580376,
+        "baseline_lr": 0.002767424284377536, "baseline_epochs": 5, "cg_damping": 0.023642076841616576,
+        "normalize_rewards": True, "inner_steps": 15, "fisher_subsample": 0.9624998647979014,
+        "minibatch_size": 164},
+    # ebt-stormpg trial 12 (score 1.206)
+    "stormpg": {"max_kl": 0.041853690969931565, "batch_size": 1024, "gae_lambda": 0.910607622481097,
+        "baseline_lr": 0.001798592343498019, "baseline_epochs": 17, "cg_damping": 0.06489309387191036,
+        "normalize_rewards": True, "inner_steps": 6, "storm_momentum": 0.18277101544675697,
+        "minibatch_size": 319},
+}
+TUNED_STEPS = 1_000_000
+"""The confirmation's budget (PROTOCOL.md section 3), in environment steps."""
+TUNED_METHOD: dict[str, str] = {
+    "trpo": "trpo",
+    **{name: "svrpo" for name in ("svrpo", "svrpo-loglik", "svrpo-sgd", "svrpo-identity", "svrpo-sarah",
+                                  "svrpo-storm", "svrpo-page", "svrpo-budgeted")},
+    **{name: "stormpg" for name in ("stormpg", "svrpg", "srvrpg", "svrpg-sgd")},
+}
+"""Whose tuned fields each preset takes at the tuned scale (PROTOCOL.md, 2026-12-06): svrpo's
+ablations svrpo's, so that each stays one field from svrpo; the fresh-sample presets stormpg's."""
+
+
 def make_preset(name: str, env_id: str = DEFAULT_ENV, scale: Scale | None = None) -> Config:
     """The named preset for a task and scale (None: the preset's `default_scale`), before any
     command-line overrides.
@@ -153,7 +186,10 @@ def make_preset(name: str, env_id: str = DEFAULT_ENV, scale: Scale | None = None
     MuJoCo TRPO (its KL per action dimension, VecNormalize's reward scaling, 2 x 1024 steps, 20
     critic epochs, CG 25, orthogonal initialisation; docs/zoo-trpo.md), with the SVRPO presets'
     (m, J, nu) by the modern scale's rule; `laptop` and `paper` are the paper's 2017 settings (a
-    linear baseline, Monte-Carlo returns) at N = 5,000 and N = 50,000, one argument away."""
+    linear baseline, Monte-Carlo returns) at N = 5,000 and N = 50,000, one argument away;
+    `tuned` is the modern scale with the equal-budget tuning's chosen fields of trpo, svrpo or
+    stormpg (TUNED_FIELDS; svrpo's ablations take svrpo's, the fresh-sample presets stormpg's)
+    and the confirmation's 1,000,000 steps."""
     if name not in PRESET_NAMES:
         import difflib
 
@@ -165,14 +201,16 @@ def make_preset(name: str, env_id: str = DEFAULT_ENV, scale: Scale | None = None
     if scale not in SCALES:
         raise ConfigError(f"unknown scale '{scale}'; choose from {', '.join(SCALES)}")
     fields: dict[str, Any] = {"env_id": env_id, **_scale_fields(scale, env_id)}
-    if scale in ("modern", "zoo"):
-        if scale == "modern":
+    if scale in ("modern", "zoo", "tuned"):
+        if scale != "zoo":
             fields.update(MODERN_BACKTRACKING)
         if name == "trpo":
             fields.update(estimator="full", inner_steps=1, fisher_subsample=1.0)
         else:
             fields.update(estimator="svrg", **MODERN_INNER)
             fields.update(_ABLATIONS[name])
+        if scale == "tuned":
+            fields.update(TUNED_FIELDS[TUNED_METHOD[name]])
     elif name == "trpo":
         # rllab TRPO: full-batch gradient, unsampled Fisher, backtracking 0.8 x 15.
         fields.update(

@@ -36,11 +36,11 @@ def test_every_preset_builds_validates_and_round_trips(name: str, scale: str, en
     assert config.env_id == env_id
     assert Config.from_json(config.to_json()) == config
     assert Config.from_dict(json.loads(config.to_json())) == config
-    if config.fresh_samples:  # N + (J - 1) m per iteration: the last part-iteration is not run
-        left = config.total_steps - config.iterations * config.steps_per_iteration
-        assert 0 <= left < config.steps_per_iteration
-    else:
-        assert config.iterations * config.batch_size == config.total_steps
+    # N + (J - 1) m per iteration with fresh samples: the last part-iteration is not run.
+    left = config.total_steps - config.iterations * config.steps_per_iteration
+    assert 0 <= left < config.steps_per_iteration
+    if not config.fresh_samples and scale != "tuned":  # tuned: the confirmation's 1,000,000
+        assert left == 0
 
 
 KNOWN_ABLATIONS = {
@@ -220,3 +220,38 @@ def test_every_entry_point_without_a_scale_takes_the_presets_default_scale(
         args, extra = make_parser().parse_known_args(["fields", "--preset", preset, "--env", "Hopper-v5"])
         args.handler(args, extra)
         assert f"--max_kl (float; {preset} at {scale} scale: {expected.max_kl!r})" in capsys.readouterr().out
+
+
+CONFIRMATION = Path(__file__).resolve().parents[1] / "results" / "equal-budget-tuning" / "confirmation"
+
+
+def test_the_tuned_scale_is_what_the_confirmation_ran_and_covers_every_preset() -> None:
+    """Each tuned method on each task is its confirmation spec's config (the chosen trial's fields
+    over the modern scale, 1,000,000 steps), but for the layout (the same 16 environments in two
+    workers) and the seed; every preset takes one method's fields (PROTOCOL.md, 2026-12-06)."""
+    from svrpo.experiments.specs import PAPER_TASKS, load_spec
+    from svrpo.presets import TUNED_FIELDS, TUNED_METHOD
+
+    assert set(TUNED_METHOD) == set(PRESET_NAMES) and set(TUNED_METHOD.values()) == set(TUNED_FIELDS)
+    selection = json.loads((CONFIRMATION / "selection.json").read_text())
+    assert {method: chosen["fields"] for method, chosen in selection.items()} == TUNED_FIELDS
+    for method in TUNED_FIELDS:
+        spec = load_spec(str(CONFIRMATION / f"{method}.yaml"))
+        assert list(spec.presets) == [method] and list(spec.tasks) == list(PAPER_TASKS)
+        for task in PAPER_TASKS:
+            confirmed = spec.config(task, method, spec.seeds[0])
+            tuned = make_preset(method, task, "tuned")
+            assert (tuned.num_workers * tuned.envs_per_worker ==
+                    confirmed.num_workers * confirmed.envs_per_worker == 16)
+            layout = {"num_workers": confirmed.num_workers, "envs_per_worker": confirmed.envs_per_worker}
+            assert differing_fields(tuned.replace(seed=confirmed.seed, **layout), confirmed) == {}
+            assert tuned.total_steps == 1_000_000
+
+
+@pytest.mark.parametrize("name", PRESET_NAMES)
+def test_at_the_tuned_scale_a_preset_is_its_methods_tuned_fields_over_its_modern_preset(name: str) -> None:
+    from svrpo.presets import TUNED_FIELDS, TUNED_METHOD
+
+    tuned_fields = TUNED_FIELDS[TUNED_METHOD[name]]
+    expected = make_preset(name, "Walker2d-v5", "modern").replace(total_steps=1_000_000, **tuned_fields)
+    assert make_preset(name, "Walker2d-v5", "tuned") == expected
