@@ -24,6 +24,7 @@ import argparse
 import math
 import statistics
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -85,11 +86,11 @@ class TrialPoint:
     """Its runs' CPU seconds (RunCost.cpu_seconds summed)."""
 
 
-def best_so_far(points: list[TrialPoint]) -> list[float]:
-    """The highest complete score among the trials up to each one, in trial order (NaN before
-    the first complete trial)."""
+def best_so_far(points: Sequence[TrialPoint]) -> list[float]:
+    """The highest complete score among the trials up to each one, of trials in number order
+    (NaN before the first complete trial)."""
     best, out = math.nan, []
-    for point in sorted(points, key=lambda p: p.number):
+    for point in points:
         if point.state == "COMPLETE" and (math.isnan(best) or point.score > best):
             best = point.score
         out.append(best)
@@ -167,10 +168,10 @@ def write_figure(summaries: list[StudySummary], path: Path) -> Path:
     figure, (by_trial, by_cpu) = plt.subplots(1, 2, figsize=(11, 4))
     for s in summaries:
         color = PRESET_COLORS.get(s.method, "black")
-        points = sorted(s.trials, key=lambda p: p.number)
+        points = s.trials  # by number (summarise)
         complete = [p for p in points if p.state == "COMPLETE"]
         pruned = [p for p in points if p.state == "PRUNED"]
-        best = best_so_far(list(points))
+        best = best_so_far(points)
         by_trial.plot([p.number for p in complete], [p.score for p in complete], "o", color=color)
         by_trial.plot([p.number for p in pruned], [p.score for p in pruned], "x", color=color, alpha=0.6)
         by_trial.step([p.number for p in points], best, where="post", color=color, label=s.method)

@@ -63,7 +63,7 @@ configuration beat today's)."""
 def default_scale(preset: str) -> Scale:
     """The scale `svrpo train`, `svrpo fields`, a config file, a tune spec and `make_preset` give
     `preset` when none is named."""
-    return DEFAULT_SCALES.get(preset, "modern")
+    return DEFAULT_SCALES[preset]
 
 
 def _task_family(env_id: str) -> str:

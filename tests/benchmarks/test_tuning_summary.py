@@ -61,7 +61,7 @@ def test_a_study_summary_counts_states_choice_steps_and_cpu(tmp_path: Path) -> N
     scores = [p.score for p in summary.trials]
     assert scores[:4] == [0.5, 0.895, 5.0, 0.9] and math.isnan(scores[4])
     # The best so far counts complete trials only (the pruned trial's 5.0 is an intermediate).
-    assert script.best_so_far(list(summary.trials)) == [0.5, 0.895, 0.895, 0.9, 0.9]
+    assert script.best_so_far(summary.trials) == [0.5, 0.895, 0.895, 0.9, 0.9]
     figure = script.write_figure([summary], tmp_path / "tuning.png")
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     text = script.render([summary], 20)
