@@ -57,7 +57,8 @@ DEFAULT_SCALES: dict[str, Scale] = {name: "modern" for name in PRESET_NAMES}
 """Each preset's scale when none is named (`default_scale`): `modern` for every preset until the
 equal-budget tuning's confirmation decides otherwise (results/equal-budget-tuning/PROTOCOL.md,
 section 8 and its 2026-12-06 section: a method's presets move to `tuned` only where its tuned
-configuration beat today's)."""
+configuration beat today's; tests/test_presets.py holds this table to the
+committed confirmation.json)."""
 
 
 def default_scale(preset: str) -> Scale:

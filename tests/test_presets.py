@@ -15,6 +15,8 @@ from svrpo.errors import ConfigError
 from svrpo.presets import PRESET_NAMES, SCALES, make_preset
 from svrpo.sampling.envs import horizon
 
+ROOT = Path(__file__).resolve().parents[1]
+
 TASKS = ("Swimmer-v5", "Hopper-v5", "Walker2d-v5", "HalfCheetah-v5", "Ant-v5", "Humanoid-v5")
 # DESIGN.md: per-task (m, J) and iteration count at paper scale.
 PAPER_M_J_ITERATIONS = {
@@ -176,15 +178,26 @@ def test_zoo_scale_is_rl_zoos_trpo_yml_key_by_key(env_id: str) -> None:
         "estimator": ("full", "svrg"), "minibatch_size": (1000, 512), "inner_steps": (1, 8)}
 
 
-def test_every_preset_defaults_to_the_modern_scale_today() -> None:
-    """Until the equal-budget tuning's confirmation moves a method to `tuned` (PROTOCOL.md
-    section 8): each preset without a named scale is its modern-scale preset."""
-    from svrpo.presets import DEFAULT_SCALES, default_scale
+def test_each_presets_default_scale_follows_the_confirmations_defaults_rule() -> None:
+    """PROTOCOL.md section 8 and its 2026-12-06 section, read from the committed confirmation
+    report (results/equal-budget-tuning/confirmation.json): a method's presets default to `tuned`
+    exactly where its defaults test passed (the 95% interval of P(tuned > today's) above 0.5),
+    every other preset to `modern`; before the report exists, every preset is `modern`. So the
+    table in presets.DEFAULT_SCALES cannot drift from the verdict it records."""
+    from svrpo.presets import DEFAULT_SCALES, TUNED_METHOD, default_scale
 
-    assert set(DEFAULT_SCALES) == set(PRESET_NAMES)
+    report = CONFIRMATION.parent / "confirmation.json"
+    passed: set[str] = set()
+    if report.is_file():
+        entries = {entry["x"]: entry for entry in json.loads(report.read_text())["defaults"]}
+        methods = set(TUNED_METHOD.values())
+        assert set(entries) == {f"{method} (tuned)" for method in methods}
+        passed = {method for method in methods if entries[f"{method} (tuned)"]["ci"][0] > 0.5}
+    assert set(DEFAULT_SCALES) == set(PRESET_NAMES) == set(TUNED_METHOD)
     for name in PRESET_NAMES:
-        assert default_scale(name) == "modern"
-        assert make_preset(name, "Hopper-v5") == make_preset(name, "Hopper-v5", "modern")
+        expected = "tuned" if TUNED_METHOD[name] in passed else "modern"
+        assert default_scale(name) == expected, name
+        assert make_preset(name, "Hopper-v5") == make_preset(name, "Hopper-v5", expected)
 
 
 def test_every_entry_point_without_a_scale_takes_the_presets_default_scale(
@@ -222,7 +235,7 @@ def test_every_entry_point_without_a_scale_takes_the_presets_default_scale(
         assert f"--max_kl (float; {preset} at {scale} scale: {expected.max_kl!r})" in capsys.readouterr().out
 
 
-CONFIRMATION = Path(__file__).resolve().parents[1] / "results" / "equal-budget-tuning" / "confirmation"
+CONFIRMATION = ROOT / "results" / "equal-budget-tuning" / "confirmation"
 
 
 def test_the_tuned_scale_is_what_the_confirmation_ran_and_covers_every_preset() -> None:
