@@ -194,8 +194,9 @@ def test_each_presets_default_scale_follows_the_confirmations_defaults_rule() ->
         methods = set(TUNED_METHOD.values())
         assert set(entries) == {f"{method} (tuned)" for method in methods}
         # The report's own section-8 verdict (screening_report.no_effect) and its direction.
-        passed = {method for method in methods if not entries[f"{method} (tuned)"]["no_effect"]
-                  and entries[f"{method} (tuned)"]["value"] > 0.5}
+        verdicts = {method: entries[f"{method} (tuned)"] for method in methods}
+        passed = {method for method, verdict in verdicts.items()
+                  if not verdict["no_effect"] and verdict["value"] > 0.5}
     assert set(DEFAULT_SCALES) == set(PRESET_NAMES) == set(TUNED_METHOD)
     for name in PRESET_NAMES:
         expected = "tuned" if TUNED_METHOD[name] in passed else "modern"
@@ -236,7 +237,6 @@ def test_every_entry_point_without_a_scale_takes_the_presets_default_scale(
         args, extra = make_parser().parse_known_args(["fields", "--preset", preset, "--env", "Hopper-v5"])
         args.handler(args, extra)
         assert f"--max_kl (float; {preset} at {scale} scale: {expected.max_kl!r})" in capsys.readouterr().out
-
 
 
 def test_the_tuned_scale_is_what_the_confirmation_ran_and_covers_every_preset() -> None:
