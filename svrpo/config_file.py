@@ -1,7 +1,7 @@
 """Config files: a YAML (or JSON) mapping of config fields on top of a preset.
 
     preset: trpo          # optional, default svrpo (as `svrpo train`)
-    scale: modern         # optional, default modern
+    scale: modern         # optional, default the preset's (docs/presets.md)
     env_id: Hopper-v5     # optional, default Hopper-v5
     max_kl: 0.02          # any config field (`svrpo fields` lists them)
     gae_lambda: 0.97

@@ -181,9 +181,10 @@ def make_preset(name: str, env_id: str = DEFAULT_ENV, scale: Scale | None = None
     """The named preset for a task and scale (None: the preset's `default_scale`), before any
     command-line overrides.
 
-    The default scale is `modern` (sb3-contrib's TRPO settings: an MLP critic, GAE 0.95,
-    observation normalisation; max_kl 0.01 on the summed KL, where sb3-contrib's 0.01 bounds the
-    per-dimension mean), which learns on tasks nobody tuned for; `zoo` is rl-baselines3-zoo's tuned
+    The default scale is the preset's entry in DEFAULT_SCALES. `modern` is sb3-contrib's TRPO
+    settings (an MLP critic, GAE 0.95, observation normalisation; max_kl 0.01 on the summed KL,
+    where sb3-contrib's 0.01 bounds the per-dimension mean), which learns on tasks nobody tuned
+    for; `zoo` is rl-baselines3-zoo's tuned
     MuJoCo TRPO (its KL per action dimension, VecNormalize's reward scaling, 2 x 1024 steps, 20
     critic epochs, CG 25, orthogonal initialisation; docs/zoo-trpo.md), with the SVRPO presets'
     (m, J, nu) by the modern scale's rule; `laptop` and `paper` are the paper's 2017 settings (a

@@ -46,9 +46,9 @@ def make_parser() -> argparse.ArgumentParser:
     train.add_argument("--preset", default=None, choices=PRESET_NAMES, help="default svrpo")
     train.add_argument("--env", default=None, help="Gymnasium task id (Box spaces); default Hopper-v5")
     train.add_argument("--scale", default=None, choices=SCALES,
-                       help="default: the preset's (modern: sb3-contrib's TRPO settings); laptop and "
+                       help="default: the preset's; modern: sb3-contrib's TRPO settings; laptop and "
                        "paper: the paper's; zoo: rl-baselines3-zoo's tuned TRPO; tuned: this "
-                       "library's equal-budget tuning (docs/presets.md)")
+                       "library's equal-budget tuning (docs/presets.md says which preset defaults to which)")
     train.add_argument("--steps", type=int, default=None,
                        help="total environment steps (with --resume: extend the run to this many)")
     train.add_argument("--seed", type=int, default=None, help="default 0")
