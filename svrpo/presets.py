@@ -53,14 +53,6 @@ FRESH_PRESET_BASE = "svrpo-budgeted"
 """The preset the fresh-sample presets differ from by the estimator alone."""
 
 
-DEFAULT_SCALES: dict[str, Scale] = {name: "modern" for name in PRESET_NAMES}
-"""Each preset's scale when none is named (`default_scale`): `modern` for every preset until the
-equal-budget tuning's confirmation decides otherwise (results/equal-budget-tuning/PROTOCOL.md,
-section 8 and its 2026-12-06 section: a method's presets move to `tuned` only where its tuned
-configuration beat today's; tests/test_presets.py holds this table to the
-committed confirmation.json)."""
-
-
 def default_scale(preset: str) -> Scale:
     """The scale `svrpo train`, `svrpo fields`, a config file, a tune spec and `make_preset` give
     `preset` when none is named."""
@@ -175,6 +167,17 @@ TUNED_METHOD: dict[str, str] = {
 }
 """Whose tuned fields each preset takes at the tuned scale (PROTOCOL.md, 2026-12-06): svrpo's
 ablations svrpo's, so that each stays one field from svrpo; the fresh-sample presets stormpg's."""
+
+DEFAULTS_TUNED: frozenset[str] = frozenset()
+"""The tuned methods whose presets default to the `tuned` scale: those whose tuned configuration
+beat today's `modern` one in the equal-budget tuning's confirmation (results/equal-budget-tuning,
+PROTOCOL.md section 8 and its 2026-12-06 section; tests/test_presets.py holds this set to the
+committed confirmation.json). None until that report exists."""
+
+DEFAULT_SCALES: dict[str, Scale] = {
+    name: "tuned" if TUNED_METHOD[name] in DEFAULTS_TUNED else "modern" for name in PRESET_NAMES}
+"""Each preset's scale when none is named (`default_scale`): `tuned` for the presets of the
+methods in DEFAULTS_TUNED, `modern` for the others."""
 
 
 def make_preset(name: str, env_id: str = DEFAULT_ENV, scale: Scale | None = None) -> Config:
