@@ -172,7 +172,7 @@ DEFAULTS_TUNED: frozenset[str] = frozenset()
 """The tuned methods whose presets default to the `tuned` scale: those whose tuned configuration
 beat today's `modern` one in the equal-budget tuning's confirmation (results/equal-budget-tuning,
 PROTOCOL.md section 8 and its 2026-12-06 section; tests/test_presets.py holds this set to the
-committed confirmation.json). None until that report exists."""
+committed confirmation.json): none, by its report of 2026-12-06."""
 
 DEFAULT_SCALES: dict[str, Scale] = {
     name: "tuned" if TUNED_METHOD[name] in DEFAULTS_TUNED else "modern" for name in PRESET_NAMES}

@@ -204,6 +204,35 @@ def test_each_presets_default_scale_follows_the_confirmations_defaults_rule() ->
         assert make_preset(name, "Hopper-v5") == make_preset(name, "Hopper-v5", expected)
 
 
+def test_the_readmes_defaults_table_quotes_the_confirmation_at_each_default_scale() -> None:
+    """README's "What the defaults reach": one column per tuned method, headed by its default
+    scale (presets.DEFAULT_SCALES), each cell the confirmation report's final deterministic
+    evaluation of the configuration that scale is (`tuned`: the confirmation's runs; `modern`:
+    today's committed runs the report compares them with), so neither the table nor the scale it
+    names can drift from the report."""
+    from svrpo.experiments.specs import PAPER_TASKS
+    from svrpo.presets import DEFAULT_SCALES
+    from tests.helpers import load_benchmark
+
+    methods = ("trpo", "svrpo", "stormpg")
+    today = load_benchmark("tuning_confirmation").TODAY
+    evaluation = {}
+    for line in (CONFIRMATION.parent / "confirmation.md").read_text().splitlines():
+        cells = [cell.strip() for cell in line.strip("|").split("|")]
+        if line.startswith("| ") and len(cells) > 4:
+            evaluation[(cells[0], cells[1])] = cells[4]  # task, configuration -> final eval [CI]
+    readme = (ROOT / "README.md").read_text().splitlines()
+    header = "| task | " + " | ".join(f"{m} ({DEFAULT_SCALES[m]})" for m in methods) + " |"
+    start = readme.index(header) + 2
+    end = next(i for i in range(start, len(readme)) if not readme[i].startswith("|"))
+    rows = [[cell.strip() for cell in line.strip("|").split("|")] for line in readme[start:end]]
+    assert [row[0] for row in rows] == list(PAPER_TASKS)
+    for row in rows:
+        for method, cell in zip(methods, row[1:], strict=True):
+            name = f"{method} (tuned)" if DEFAULT_SCALES[method] == "tuned" else today[method]
+            assert cell == evaluation[(row[0], name)], (row[0], method)
+
+
 def test_every_entry_point_without_a_scale_takes_the_presets_default_scale(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     """make_preset, `svrpo train`, `svrpo fields`, a config file and a tune spec each read the
