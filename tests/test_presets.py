@@ -214,8 +214,8 @@ def test_the_readmes_defaults_table_quotes_the_confirmation_at_each_default_scal
     from svrpo.presets import DEFAULT_SCALES
     from tests.helpers import load_benchmark
 
-    methods = ("trpo", "svrpo", "stormpg")
-    today = load_benchmark("tuning_confirmation").TODAY
+    report = load_benchmark("tuning_confirmation")  # its names: METHODS, TUNED, TODAY
+    methods = report.METHODS
     evaluation = {}
     for line in (CONFIRMATION.parent / "confirmation.md").read_text().splitlines():
         cells = [cell.strip() for cell in line.strip("|").split("|")]
@@ -229,7 +229,7 @@ def test_the_readmes_defaults_table_quotes_the_confirmation_at_each_default_scal
     assert [row[0] for row in rows] == list(PAPER_TASKS)
     for row in rows:
         for method, cell in zip(methods, row[1:], strict=True):
-            name = f"{method} (tuned)" if DEFAULT_SCALES[method] == "tuned" else today[method]
+            name = report.TUNED[method] if DEFAULT_SCALES[method] == "tuned" else report.TODAY[method]
             assert cell == evaluation[(row[0], name)], (row[0], method)
 
 
