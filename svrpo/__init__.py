@@ -13,10 +13,15 @@
 
 from typing import Any
 
-from svrpo.config import Config, field_docs
-from svrpo.config_file import load_config
-from svrpo.errors import ConfigError
-from svrpo.presets import PRESET_NAMES, SCALES, make_preset
+# First, before anything here can reach torch's matrix math: oneMKL reads its code branch once.
+from svrpo.numerics import pin_cpu_numerics
+
+pin_cpu_numerics()
+
+from svrpo.config import Config, field_docs  # noqa: E402
+from svrpo.config_file import load_config  # noqa: E402
+from svrpo.errors import ConfigError  # noqa: E402
+from svrpo.presets import PRESET_NAMES, SCALES, make_preset  # noqa: E402
 
 _ESTIMATOR_NAMES = ("BatchGradients", "GradientEstimator", "FullGradient", "MinibatchGradient",
                     "SvrgGradient", "SarahGradient", "StormGradient", "PageGradient", "SvrpgGradient",

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from svrpo.config import Config, differing_fields
 from svrpo.experiments.specs import ExperimentSpec, SpecError
+from svrpo.numerics import requested_mkl_branch
 from svrpo.rundir import checkpoint
 from svrpo.rundir.atomic import write_text_atomic
 from svrpo.rundir.completion import ProgressError, is_finished
@@ -146,13 +147,16 @@ def identical_finished_run(job: RunJob, root: Path) -> Path | None:
     """A finished run of another experiment under `root` with exactly `job`'s config, or None.
 
     Figures share runs (svrpo and trpo on Swimmer appear in figures 1, 2 and 3): a run is fixed
-    by its config (training is deterministic for a config at a fixed torch thread count), so
-    training it again would only repeat the same numbers. Candidates are the same
-    ENV/PRESET/seedK under any other experiment directory; any config difference rules one out.
+    by its config (training is deterministic for a config at a fixed torch thread count and
+    oneMKL code branch, svrpo.numerics), so training it again would only repeat the same numbers.
+    Candidates are the same ENV/PRESET/seedK under any other experiment directory; any config
+    difference, or another recorded oneMKL branch than this process asks for (runs from before
+    the branch was pinned record none), rules one out.
     """
     task, preset, seed = job.run_dir.parent.parent.name, job.run_dir.parent.name, job.run_dir.name
+    branch = requested_mkl_branch()
     for candidate in sorted(root.glob(f"*/{task}/{preset}/{seed}")):
-        if candidate.resolve() == job.run_dir.resolve():
+        if candidate.resolve() == job.run_dir.resolve() or _recorded_mkl_branch(candidate) != branch:
             continue
         try:
             state = status(RunJob(candidate, job.config, job.preset, job.experiment, job.scale))
@@ -161,6 +165,14 @@ def identical_finished_run(job: RunJob, root: Path) -> Path | None:
         if state is RunStatus.DONE:
             return candidate
     return None
+
+
+def _recorded_mkl_branch(run_dir: Path) -> str | None:
+    meta_path = run_dir / "run.json"
+    try:
+        return json.loads(meta_path.read_text()).get("mkl_code_branch") if meta_path.is_file() else None
+    except (OSError, ValueError):
+        return None
 
 
 def adopt(job: RunJob, source: Path) -> None:

@@ -41,3 +41,21 @@ def write_meta(run_dir: Path, preset: str, scale: str | None, keep_existing: boo
     meta = {"preset": preset, "scale": scale, **extra, "argv": sys.argv[1:],
             "python": platform.python_version()}
     write_text_atomic(path, json.dumps(meta, indent=2) + "\n")
+
+
+def record_mkl_branch(run_dir: Path, branch: str | None) -> str | None:
+    """Put oneMKL's code branch of the training process into run.json (svrpo.numerics).
+
+    Returns a warning when run.json already names another branch (a resume under other numerics:
+    its rows after the resume differ from an uninterrupted run's); the first record is kept.
+    """
+    path = run_dir / META_FILE
+    meta = json.loads(path.read_text()) if path.is_file() else {}
+    recorded = meta.get("mkl_code_branch")
+    if recorded is None:
+        write_text_atomic(path, json.dumps({**meta, "mkl_code_branch": branch}, indent=2) + "\n")
+        return None
+    if recorded != branch:
+        return (f"warning: this run was started with oneMKL's {recorded} code branch and continues "
+                f"with {branch}: its rows from here on differ from an uninterrupted run's")
+    return None

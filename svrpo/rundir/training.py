@@ -18,12 +18,13 @@ from svrpo.algorithm.iteration import run_iteration
 from svrpo.algorithm.run import Run, build_run
 from svrpo.config import Config
 from svrpo.errors import TrainingError
+from svrpo.numerics import cpu_numerics_note, mkl_code_branch
 from svrpo.rundir import checkpoint
 from svrpo.rundir.atomic import write_text_atomic
 from svrpo.rundir.progress_log import RunLogger, truncate_progress
 from svrpo.rundir.run_files import claim_run_directory
 from svrpo.rundir.run_lock import exclusive_writer, record_holder
-from svrpo.rundir.run_record import write_config, write_meta
+from svrpo.rundir.run_record import record_mkl_branch, write_config, write_meta
 from svrpo.sampling.batch_step import stepper_record
 from svrpo.sampling.sampler import uncaptured_state
 
@@ -150,6 +151,9 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
             _restore_progress(progress, "")  # a fresh start: no rows of an earlier run
         notes = notes + (_resume(run, run_dir, restart_episodes) if resume else [])
         notes.append(f"stepping the envs with {_STEPPER_WORDS[run.sampler.stepper]}")
+        branch = mkl_code_branch()
+        notes += [note for note in (cpu_numerics_note(branch), record_mkl_branch(run_dir, branch))
+                  if note is not None]
         uncaptured = uncaptured_state(run.sampler.get_state())
         if uncaptured:
             notes.append(f"note: the env keeps state a checkpoint cannot hold ({', '.join(uncaptured)}): "

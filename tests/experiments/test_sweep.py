@@ -328,6 +328,20 @@ def test_a_run_shared_by_two_experiments_is_copied_not_trained_again(tmp_path: P
     assert "copied_from" not in (root / "third-laptop" / "InvertedPendulum-v5" / "svrpo" / "seed0"
                                  / "run.json").read_text()
 
+    # A run trained under another oneMKL code branch (here: one from before the branch was pinned,
+    # whose run.json records none) has other numbers: trained, not copied.
+    assert json.loads((source / "run.json").read_text())["mkl_code_branch"] == "COMPATIBLE"
+    for run in (source, copy):
+        meta = json.loads((run / "run.json").read_text())
+        del meta["mkl_code_branch"]
+        (run / "run.json").write_text(json.dumps(meta))
+    fourth = tmp_path / "fourth.yaml"
+    fourth.write_text(second.read_text().replace("name: other", "name: fourth")
+                      .replace("presets: [svrpo, svrpo-sgd]", "presets: [svrpo]"))
+    result = _sweep(fourth, root)
+    assert result.returncode == 0, result.stderr
+    assert "copied" not in result.stdout + result.stderr
+
 
 @pytest.mark.parametrize(("option", "seeds", "said"), [
     ("2", [0, 1], "2 seeds (0-1)"), ("100-102", [100, 101, 102], "3 seeds (100-102)"),

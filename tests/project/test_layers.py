@@ -19,7 +19,7 @@ import svrpo
 PACKAGE = Path(svrpo.__file__).parent
 
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("errors", "yaml_input", "arguments"),  # import nothing of svrpo
+    ("errors", "numerics", "yaml_input", "arguments"),  # import nothing of svrpo
     ("coercion", "sampling"),               # a field's value from text; the torch-free workers
     ("config",),                            # the Config schema and its validation
     ("presets", "models"),                  # the named configs; the networks
