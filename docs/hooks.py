@@ -1,6 +1,10 @@
 """The documentation site's build steps (mkdocs.yml `hooks:`), and the generator of its two
 generated pages.
 
+The pages write equations in LaTeX (`$...$` inline, `$$...$$` as a block); pymdownx.arithmatex
+marks them and `on_page_content` turns each into MathML at build time (latex2mathml), which
+browsers draw without a script or a network: the site loads nothing from outside itself.
+
 `python docs/hooks.py` rewrites docs/configuration.md from svrpo.Config's field docstrings
 (`svrpo.field_docs()`) and docs/api.md from `svrpo.__all__`; `python docs/hooks.py --check` exits
 1 when a committed page is not what it would write, and so does `mkdocs build`
@@ -10,6 +14,7 @@ generated pages.
 from __future__ import annotations
 
 import dataclasses
+import html
 import re
 import sys
 from pathlib import Path
@@ -20,6 +25,9 @@ ROOT = DOCS.parent
 CONFIG_PAGE = DOCS / "configuration.md"
 API_PAGE = DOCS / "api.md"
 LINK = re.compile(r"\[([^\]]*)\]\(([^)\s]+)\)")
+MATH = re.compile(r'<(span|div) class="arithmatex">\\[(\[](.*?)\\[)\]]</\1>', re.DOTALL)
+"""An equation as pymdownx.arithmatex (generic mode) leaves it: `<span class="arithmatex">\\(x\\)`
+inline, `<div class="arithmatex">\\[x\\]` as a block, the LaTeX HTML-escaped."""
 
 
 def _cell(text: str) -> str:
@@ -106,6 +114,26 @@ def _outside_link(page_path: Path, text: str, target: str) -> str | None:
     return f"`{where}`" if same else f"{text} (`{where}`)"
 
 
+def latex_to_mathml(html_text: str, where: str = "a page") -> str:
+    """Every equation arithmatex marked in `html_text`, as MathML (display="block" for a block);
+    LaTeX that latex2mathml cannot read, or a command it would leave as text, fails the build,
+    naming the page and the equation."""
+    from latex2mathml.converter import convert
+    from mkdocs.exceptions import PluginError
+
+    def replace(match: re.Match[str]) -> str:
+        tag, latex = match.group(1), html.unescape(match.group(2)).strip()
+        try:
+            mathml = convert(latex, display="block" if tag == "div" else "inline")
+        except Exception as error:  # latex2mathml raises its own, untyped errors
+            raise PluginError(f"{where}: cannot render the equation {latex!r}: {error!r}") from error
+        if unknown := re.findall(r">(\\[A-Za-z]+)<", mathml):  # a command it does not know stays text
+            raise PluginError(f"{where}: cannot render the equation {latex!r}: unknown {', '.join(unknown)}")
+        return mathml if tag == "span" else f'<div class="math-block">{mathml}</div>'
+
+    return MATH.sub(replace, html_text)
+
+
 # --- MkDocs hooks -----------------------------------------------------------------------------
 
 
@@ -135,6 +163,10 @@ def on_page_markdown(markdown: str, page: Any, config: Any, files: Any) -> str:
         return match.group(0) if rewritten is None else rewritten
 
     return LINK.sub(replace, markdown)
+
+
+def on_page_content(html_text: str, page: Any, config: Any, files: Any) -> str:
+    return latex_to_mathml(html_text, page.file.src_uri)
 
 
 if __name__ == "__main__":

@@ -81,6 +81,16 @@ def test_the_site_builds_strict(tmp_path: Path) -> None:
     assert (tmp_path / "configuration" / "index.html").is_file()
     api = (tmp_path / "api" / "index.html").read_text()
     assert "load_policy" in api and "make_preset" in api
+    # Equations are MathML written at build time, and no page loads a script, a stylesheet, a
+    # font or an image from outside the site: it reads the same with no network.
+    estimators = (tmp_path / "estimators" / "index.html").read_text()
+    assert estimators.count("<math") >= 20 and 'class="arithmatex"' not in estimators
+    outside = re.compile(r"<(?:script|img|link|iframe)\b[^>]*\b(?:src|href)=\"(?:https?:)?//")
+    loads = [str(page.relative_to(tmp_path)) for page in tmp_path.rglob("*.html")
+             if outside.search(page.read_text())]
+    loads += [str(sheet.relative_to(tmp_path)) for sheet in tmp_path.rglob("*.css")
+              if re.search(r"url\(\s*[\"']?(?:https?:)?//", sheet.read_text())]
+    assert not loads, f"pages that load something from outside the site: {loads}"
 
 
 def test_a_link_to_a_missing_repository_file_fails_the_build(tmp_path: Path) -> None:
@@ -93,3 +103,35 @@ def test_a_link_to_a_missing_repository_file_fails_the_build(tmp_path: Path) -> 
     assert hooks._outside_link(page, "t", "tuning.md") is None  # a page: mkdocs checks it
     with pytest.raises(PluginError, match="names no repository file"):
         hooks._outside_link(page, "gone", "../NO-SUCH-FILE.md")
+
+
+def test_equations_become_mathml_and_bad_latex_fails_the_build() -> None:
+    pytest.importorskip("latex2mathml", reason="the docs extra: pip install -e '.[docs]'")
+    from mkdocs.exceptions import PluginError
+
+    hooks = _hooks()
+    page = ('<p>a <span class="arithmatex">\\(\\tilde g &lt; \\sqrt{x}\\)</span> b</p>'
+            '<div class="arithmatex">\\[\\frac{1}{N}\\sum_t U_t\\]</div>')
+    done = hooks.latex_to_mathml(page)
+    assert 'display="inline"' in done and 'display="block"' in done and "<msqrt>" in done
+    assert "<mfrac>" in done and "arithmatex" not in done and "&#x0003C;" in done  # the unescaped <
+    for bad in ("x^", "\\undefinedcommand x"):
+        with pytest.raises(PluginError, match=r"x\.md: cannot render"):
+            hooks.latex_to_mathml(f'<span class="arithmatex">\\({bad}\\)</span>', "x.md")
+
+
+PLAIN_EQUATIONS = re.compile(r"\b[gw]~|tr\(Sigma\)|\bmean_[IBt]\b|\bgrad [UlG]\b|\bsqrt\(")
+"""What an equation looked like before the pages wrote LaTeX (`g~ + mean_I(grad U_t(w) - ...)`)."""
+
+
+def test_no_page_writes_an_equation_in_plain_text() -> None:
+    """Outside code (fenced blocks, `inline`), the pages write equations as $...$ LaTeX. The two
+    generated pages are left out: they are docstrings, which `svrpo fields` and help() print in a
+    terminal."""
+    found = []
+    for path in sorted(set(DOCS.glob("*.md")) - {DOCS / "configuration.md", DOCS / "api.md"}):
+        prose = re.sub(r"```.*?```", "", path.read_text(), flags=re.DOTALL)
+        prose = re.sub(r"`[^`\n]*`", "", prose)
+        prose = re.sub(r"\$\$.*?\$\$|\$[^$\n]*\$", "", prose, flags=re.DOTALL)
+        found += [f"{path.name}: {match.group(0)}" for match in PLAIN_EQUATIONS.finditer(prose)]
+    assert not found, found
