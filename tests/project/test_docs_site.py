@@ -192,3 +192,19 @@ def test_the_home_page_answer_is_the_reports_and_its_figure_the_committed_one() 
     assert problems(prose.replace("0.50 [0.35, 0.65]", "0.55 [0.35, 0.65]"))
     assert re.findall(r"!\[[^\]]*\]\(([^)]+)\)", answer) == [f"../{HOME_FIGURE}"]
     assert not list(DOCS.rglob("*.png")), "a figure copied into docs/: link the committed one"
+
+
+def test_the_readme_first_screen_is_two_commands_without_dated_notes() -> None:
+    """README's "Two commands": one sets up and runs the main job, one runs the tests; what they
+    measured, with its date and load, is on the docs pages it links."""
+    readme = (ROOT / "README.md").read_text()
+    section = readme.split("## Two commands\n", 1)[1].split("\n## ", 1)[0]
+    commands = re.findall(r"```bash\n(.*?)```", section, re.DOTALL)
+    assert len(commands) == 2 and all(len(command.strip().splitlines()) == 1 for command in commands)
+    assert "pip install" in commands[0] and "svrpo train" in commands[0] and "pytest" in commands[1]
+    prose = re.sub(r"```.*?```", "", section, flags=re.DOTALL)
+    assert not re.findall(r"20\d\d-\d\d-\d\d|\bnice\b|\d+ s\b", prose)
+    assert "docs/reproducing.md#the-readmes-first-command-measured" in prose
+    assert "docs/development.md#how-long-the-suite-takes" in prose
+    assert "## The README's first command, measured" in (DOCS / "reproducing.md").read_text()
+    assert "## How long the suite takes" in (DOCS / "development.md").read_text()
