@@ -1,6 +1,14 @@
 """The documentation site's build steps (mkdocs.yml `hooks:`), and the generator of its two
 generated pages.
 
+The pages write equations in LaTeX (`$...$` inline, `$$...$$` as a block); pymdownx.arithmatex
+marks them and `on_page_content` turns each into MathML at build time (latex2mathml), which
+browsers draw without a script or a network: the site loads nothing from outside itself.
+
+A page may show a repository file outside docs/ as an image (`![...](../results/EXP/returns.png)`,
+a link that also works on the repository's own pages): `on_files` adds that file to the site
+under repository/ at build time, so the committed file is the only copy.
+
 `python docs/hooks.py` rewrites docs/configuration.md from svrpo.Config's field docstrings
 (`svrpo.field_docs()`) and docs/api.md from `svrpo.__all__`; `python docs/hooks.py --check` exits
 1 when a committed page is not what it would write, and so does `mkdocs build`
@@ -10,6 +18,8 @@ generated pages.
 from __future__ import annotations
 
 import dataclasses
+import html
+import os
 import re
 import sys
 from pathlib import Path
@@ -19,7 +29,14 @@ DOCS = Path(__file__).resolve().parent
 ROOT = DOCS.parent
 CONFIG_PAGE = DOCS / "configuration.md"
 API_PAGE = DOCS / "api.md"
-LINK = re.compile(r"\[([^\]]*)\]\(([^)\s]+)\)")
+LINK = re.compile(r"(!?)\[([^\]]*)\]\(([^)\s]+)\)")
+REPOSITORY_FILES = "repository"
+"""The site folder that holds the repository files outside docs/ that a page shows as an image
+(`![...](../results/EXP/returns.png)`): copied there at build time, so the committed file is
+the only copy."""
+MATH = re.compile(r'<(span|div) class="arithmatex">\\[(\[](.*?)\\[)\]]</\1>', re.DOTALL)
+"""An equation as pymdownx.arithmatex (generic mode) leaves it: `<span class="arithmatex">\\(x\\)`
+inline, `<div class="arithmatex">\\[x\\]` as a block, the LaTeX HTML-escaped."""
 
 
 def _cell(text: str) -> str:
@@ -106,6 +123,26 @@ def _outside_link(page_path: Path, text: str, target: str) -> str | None:
     return f"`{where}`" if same else f"{text} (`{where}`)"
 
 
+def latex_to_mathml(html_text: str, where: str = "a page") -> str:
+    """Every equation arithmatex marked in `html_text`, as MathML (display="block" for a block);
+    LaTeX that latex2mathml cannot read, or a command it would leave as text, fails the build,
+    naming the page and the equation."""
+    from latex2mathml.converter import convert
+    from mkdocs.exceptions import PluginError
+
+    def replace(match: re.Match[str]) -> str:
+        tag, latex = match.group(1), html.unescape(match.group(2)).strip()
+        try:
+            mathml = convert(latex, display="block" if tag == "div" else "inline")
+        except Exception as error:  # latex2mathml raises its own, untyped errors
+            raise PluginError(f"{where}: cannot render the equation {latex!r}: {error!r}") from error
+        if unknown := re.findall(r">(\\[A-Za-z]+)<", mathml):  # a command it does not know stays text
+            raise PluginError(f"{where}: cannot render the equation {latex!r}: unknown {', '.join(unknown)}")
+        return mathml if tag == "span" else f'<div class="math-block">{mathml}</div>'
+
+    return MATH.sub(replace, html_text)
+
+
 # --- MkDocs hooks -----------------------------------------------------------------------------
 
 
@@ -125,16 +162,60 @@ def on_pre_build(config: Any) -> None:
         raise PluginError(f"{', '.join(stale)} out of date: run python docs/hooks.py")
 
 
+def outside_image(page_path: Path, target: str) -> Path | None:
+    """The repository file outside docs/ that an image link on a page names, or None for an image
+    inside docs/ or on the web; a missing file fails the build."""
+    if re.match(r"[a-z]+://|data:", target):
+        return None
+    path = (page_path.parent / target.split("#", 1)[0]).resolve()
+    if DOCS in (path, *path.parents):
+        return None
+    if not path.is_file() or ROOT not in path.parents:
+        from mkdocs.exceptions import PluginError
+
+        raise PluginError(f"{page_path.relative_to(ROOT)}: the image {target} names no repository file")
+    return path
+
+
+def _site_copy(path: Path) -> str:
+    """Where the site holds a repository file shown as an image, relative to docs/."""
+    return f"{REPOSITORY_FILES}/{path.relative_to(ROOT).as_posix()}"
+
+
+def on_files(files: Any, config: Any) -> Any:
+    """Add each repository file a page shows as an image to the site (the committed file itself,
+    read at build time: no copy of it is kept in docs/)."""
+    from mkdocs.structure.files import File
+
+    for page in [file for file in files if file.is_documentation_page() and file.abs_src_path]:
+        source = Path(page.abs_src_path)
+        for bang, _, target in LINK.findall(source.read_text()):
+            image = outside_image(source, target) if bang else None
+            if image is not None and files.get_file_from_path(_site_copy(image)) is None:
+                files.append(File.generated(config, _site_copy(image), abs_src_path=str(image)))
+    return files
+
+
 def on_page_markdown(markdown: str, page: Any, config: Any, files: Any) -> str:
     if page.file.abs_src_path is None:
         return markdown
     source = Path(page.file.abs_src_path)
 
     def replace(match: re.Match[str]) -> str:
-        rewritten = _outside_link(source, match.group(1), match.group(2))
+        bang, text, target = match.groups()
+        if bang:
+            image = outside_image(source, target)
+            if image is None:
+                return match.group(0)
+            return f"![{text}]({os.path.relpath(DOCS / _site_copy(image), source.parent)})"
+        rewritten = _outside_link(source, text, target)
         return match.group(0) if rewritten is None else rewritten
 
     return LINK.sub(replace, markdown)
+
+
+def on_page_content(html_text: str, page: Any, config: Any, files: Any) -> str:
+    return latex_to_mathml(html_text, page.file.src_uri)
 
 
 if __name__ == "__main__":
