@@ -62,10 +62,12 @@ def to_budget(job: RunJob) -> RunJob:
     budget = job.config.total_steps
     try:
         total = stage_total_steps(job.config, job.run_dir, budget)
-        if total is None:  # not one iteration more fits: a run extended earlier ends where it is
+        if total is None:  # not one iteration more fits: a run extended earlier ends where it is,
+            # if it is within this budget (one trained for a larger budget is another config)
             stored = _stored_config(job.run_dir)
-            done = logged_steps(job.run_dir / PROGRESS_FILE)[0]
-            if stored is not None and stored.total_steps == done * job.config.steps_per_iteration:
+            done, steps = logged_steps(job.run_dir / PROGRESS_FILE)
+            if (stored is not None and stored.total_steps == done * job.config.steps_per_iteration
+                    and steps <= budget):
                 total = stored.total_steps
     except ProgressError as error:
         raise SpecError(f"{error}; delete that run directory") from None
