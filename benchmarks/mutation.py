@@ -70,9 +70,11 @@ QUEUE_TESTS = (
 
 
 TUNING_TESTS = ("tests/tuning/test_scoring.py", "tests/tuning/test_stages.py",
+                "tests/experiments/test_budget.py",
                 "tests/benchmarks/test_tuning_confirmation.py", "tests/benchmarks/test_tuning_summary.py")
 """The tests of a trial's score (svrpo/tuning/scoring.py, space.resolve), of its stages
-(svrpo/tuning/stages.py: the budget in steps, retries), of the equal-budget tuning's report
+(svrpo/tuning/stages.py: retries; svrpo/experiments/budget.py: the budget in steps, which the
+sweep trains by too), of the equal-budget tuning's report
 (benchmarks/tuning_summary.py: steps and CPU seconds per study) and of its confirmation
 (benchmarks/tuning_confirmation.py: section 6's rule, the specs, the questions)."""
 
@@ -717,18 +719,18 @@ MUTANTS = [
     Mutant("tune-fraction-truncated", "svrpo/tuning/space.py",
            "max(1, round(share))", "int(share)",
            "a fraction field truncated instead of rounded (and may be 0)", TUNING_TESTS),
-    # --- svrpo/tuning/stages.py: a stage's budget in steps ----------------------------------
-    Mutant("tune-stage-counts-iterations", "svrpo/tuning/stages.py",
+    # --- svrpo/experiments/budget.py: a stage's budget in steps (tune and sweep) -------------
+    Mutant("tune-stage-counts-iterations", "svrpo/experiments/budget.py",
            "room = (budget - steps) // config.steps_per_iteration",
            "room = (budget - done * config.steps_per_iteration) // config.steps_per_iteration",
            "a stage counts the iterations done, not the steps they sampled", TUNING_TESTS),
-    Mutant("tune-stage-zero-room-runs", "svrpo/tuning/stages.py",
+    Mutant("tune-stage-zero-room-runs", "svrpo/experiments/budget.py",
            "    if room < 1:\n", "    if room < 0:\n",
            "a stage with no whole iteration left still trains", TUNING_TESTS),
-    Mutant("tune-stage-total-is-room", "svrpo/tuning/stages.py",
+    Mutant("tune-stage-total-is-room", "svrpo/experiments/budget.py",
            "return (done + room) * config.steps_per_iteration", "return room * config.steps_per_iteration",
            "total_steps is the new iterations only, not the run's", TUNING_TESTS),
-    Mutant("tune-stage-reads-cut-row", "svrpo/tuning/stages.py",
+    Mutant("tune-stage-reads-cut-row", "svrpo/experiments/budget.py",
            "read_progress(progress, limit=done)", "read_progress(progress)",
            "the whole file read, a half-written last row included, for the steps", TUNING_TESTS),
     Mutant("progress-limit-ignored", "svrpo/rundir/progress_log.py",
@@ -737,10 +739,17 @@ MUTANTS = [
     Mutant("tune-retry-once-less", "svrpo/tuning/stages.py",
            "if work.attempts > _RETRIES:", "if work.attempts >= _RETRIES:",
            "a killed run is retried once less than _RETRIES", TUNING_TESTS),
-    Mutant("tune-extend-any-change", "svrpo/tuning/stages.py",
-           'if set(differing_fields(existing, job.config)) == {"total_steps"}:',
-           'if "total_steps" in differing_fields(existing, job.config):',
+    Mutant("tune-extend-any-change", "svrpo/experiments/budget.py",
+           'if existing is not None and set(differing_fields(existing, job.config)) == {"total_steps"}:',
+           'if existing is not None and "total_steps" in differing_fields(existing, job.config):',
            "config.json rewritten when fields besides total_steps changed", TUNING_TESTS),
+    Mutant("sweep-budget-takes-any-larger-run", "svrpo/experiments/budget.py",
+           "                    and steps <= budget):", "                    ):",
+           "a finished run trained for a larger budget taken as this budget's", TUNING_TESTS),
+    Mutant("sweep-budget-stage-of-another-budget", "svrpo/experiments/budget.py",
+           "or not planned.config.total_steps <= stored.total_steps < job.config.total_steps):",
+           "or not stored.total_steps < job.config.total_steps):",
+           "a run made for a smaller budget taken as an earlier stage of this one", TUNING_TESTS),
     # --- benchmarks/tuning_summary.py: the studies' cost ------------------------------------
     Mutant("tune-cost-counts-cut-row", "benchmarks/tuning_summary.py",
            "read_progress(progress, limit=logged)", "read_progress(progress)",

@@ -35,6 +35,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import screening_report as screening  # noqa: E402
@@ -181,6 +183,10 @@ ZOO_NAME = "trpo (zoo)"
 TODAY = {"trpo": screening.COMMITTED_TRPO, "svrpo": "svrpo (figure1-modern)",
          "stormpg": "stormpg-b256 (fs-confirm)"}
 """Section 8's "today's" runs of each method, committed and not re-run."""
+NOT_THE_DEFAULT = {"stormpg": "B = 256, delta 0.04; the preset's modern default, B = 512, delta 0.01, "
+                              "has no six-task runs"}
+"""Methods whose "today's" runs are not their preset's default configuration, and what they are
+(README's defaults table labels such a column by the runs' name, not by the preset's scale)."""
 QUESTIONS = [
     (TUNED["svrpo"], TUNED["trpo"], "does tuned SVRPO beat tuned TRPO?"),
     (TUNED["stormpg"], TUNED["trpo"], "does tuned STORM-PG beat tuned TRPO?"),
@@ -212,25 +218,96 @@ def report(groups: screening.Groups, resamples: int = 2000) -> tuple[list[str], 
         raise ValueError(f"{len(missing)} runs have not finished (first: {missing[0]})")
     table, tables, finals_by, _ = screening.compare(groups, TODAY["trpo"], resamples)
     lines = ["# Confirmation: equal-budget tuning (PROTOCOL.md)", "", *table, ""]
+    extra, equal = screening.equal_steps(
+        groups, TODAY["trpo"], [(x, y) for x, y, _ in QUESTIONS + DEFAULTS], resamples)
+    at_equal_steps = {(pair["x"], pair["y"]): pair for pair in equal["pairs"]}
     answers: dict[str, list[dict[str, Any]]] = {"questions": [], "defaults": []}
     parts = (("questions", "Issue 38's questions", QUESTIONS),
              ("defaults", "Section 8's defaults rule (against today's committed runs)", DEFAULTS))
     for part, title, pairs in parts:
-        lines += [f"## {title}", "", "| question | P(X > Y) [95% CI] | reading (PROTOCOL.md section 8) |",
-                  "|---|---|---|"]
+        lines += [f"## {title}", "", "| question | P(X > Y) [95% CI] | reading (PROTOCOL.md section 8) | "
+                  "at equal environment steps (descriptive, below) |", "|---|---|---|---|"]
         for x, y, question in pairs:
             entry, row = screening.answer(finals_by, x, y, question, resamples)
             answers[part].append(entry)
-            lines.append(row)
+            lines.append(f"{row} {_interval(at_equal_steps[(x, y)])} |")
         lines.append("")
+        if part == "questions":
+            sampled_lines, sampled = steps_sampled(groups)
+            lines += sampled_lines
     lines += [f"The CPU and wall-clock seconds of {', '.join(TODAY.values())} come from the schedules those "
               "runs were made in (other sweeps'), not this confirmation's; their seeds are theirs (0-4, and "
               "100-109 for STORM-PG), disjoint from this confirmation's 200-209.", ""]
-    result = {**tables, **answers, "reference": TODAY["trpo"]}
-    extra, result["equal_steps"] = screening.equal_steps(
-        groups, TODAY["trpo"], [(x, y) for x, y, _ in QUESTIONS + DEFAULTS], resamples)
-    lines += extra
+    result = {**tables, **answers, "reference": TODAY["trpo"], "steps_sampled": sampled}
+    result["equal_steps"] = equal
+    tuning_lines, result["tuning_tasks"] = tuning_tasks_score(tables["per_task"])
+    lines += tuning_lines + extra
     return lines, result
+
+
+def steps_sampled(groups: screening.Groups) -> tuple[list[str], dict[str, Any]]:
+    """The environment steps each configuration's runs sampled against PROTOCOL.md section 3's
+    budget of STEPS, and which runs stopped while a whole iteration more still fit in it (the
+    sweep that ran them fixed total_steps // S iterations; STORM-PG's early-stopped inner loops
+    sample less than S): (markdown lines, {configuration: {...}})."""
+    reference = float(np.mean([_last_steps(d)[0] for dirs in groups[TUNED["trpo"]].values() for d in dirs]))
+    lines = [f"## Environment steps each run sampled (PROTOCOL.md section 3: {STEPS:,} per run)", "",
+             "The budget was read in iterations, not steps, for the fresh-sample runs: the sweep that ran "
+             "them trained total_steps // S iterations, S the most one iteration samples, and STORM-PG's "
+             "inner loops that stop early sample less (PROTOCOL.md, dated section 2026-12-07). "
+             "\"Short\": runs that stopped while a whole iteration more still fit in the budget.", "",
+             f"| configuration | runs | fewest steps | mean | most | mean / {TUNED['trpo']}'s | short |",
+             "|---|---|---|---|---|---|---|"]
+    out: dict[str, Any] = {}
+    for name, by_task in groups.items():
+        ends = [_last_steps(d) for dirs in by_task.values() for d in dirs]
+        steps = np.array([s for s, _ in ends], dtype=float)
+        short = sum(1 for s, most in ends if s + most <= STEPS)
+        out[name] = {"runs": len(ends), "fewest": int(steps.min()), "mean": float(steps.mean()),
+                     "most": int(steps.max()), "short": short}
+        lines.append(f"| {name} | {len(ends)} | {steps.min():,.0f} | {steps.mean():,.0f} | "
+                     f"{steps.max():,.0f} | {steps.mean() / reference:.0%} | {short} of {len(ends)} |")
+    lines.append("")
+    return lines, out
+
+
+def _interval(entry: dict[str, Any]) -> str:
+    return f"{entry['value']:.2f} [{entry['ci'][0]:.2f}, {entry['ci'][1]:.2f}]"
+
+
+def _last_steps(run_dir: Path) -> tuple[int, int]:
+    """(the env_steps of the run's last row, the most one iteration of its config samples)."""
+    from svrpo.config import Config
+
+    config = Config.from_json((run_dir / "config.json").read_text())
+    return int(screening.load_curve(run_dir).env_steps[-1]), config.steps_per_iteration
+
+
+def tuning_tasks_score(per_task: dict[str, dict[str, Any]]) -> tuple[list[str], dict[str, Any]]:
+    """The tuning's objective (PROTOCOL.md section 5: the mean over its three tasks and the seeds of
+    (R - low) / (high - low), the references of EXPERIMENT/trpo.yaml) on the confirmation's runs of
+    those tasks, R the confirmation's final return, beside the chosen trial's score in tuning
+    (seeds 300-301): how much of a trial's score held on the same tasks with fresh seeds."""
+    spec = load_tune_spec(str(EXPERIMENT / "trpo.yaml"))
+    references = {task: reference for task, reference in spec.tasks.items() if task in per_task}
+    selection = json.loads((EXPERIMENT / "confirmation" / "selection.json").read_text())
+    tuned = {TUNED[method]: selection[method]["score"] for method in METHODS}
+    lines = ["## The tuning's score on its own tasks, with the confirmation's seeds (descriptive)", "",
+             f"The tuning's objective on {', '.join(references)} (the mean over the tasks and seeds of "
+             "(R - untrained) / (modern TRPO's final return - untrained), references fixed in the tune "
+             "specs), R each confirmation run's final return, beside the chosen trial's score in tuning "
+             "(2 seeds, 300-301):", "", "| configuration | seeds per task | score on the tuning tasks | "
+             "the trial's score in tuning |", "|---|---|---|---|"]
+    out: dict[str, Any] = {}
+    for name in per_task[next(iter(references))]:
+        by_task = [np.mean([references[task].normalise(r) for r in per_task[task][name]["final_return"]])
+                   for task in references]
+        out[name] = {"score": float(np.mean(by_task)), "tuning_score": tuned.get(name)}
+        seeds = len(per_task[next(iter(references))][name]["final_return"])
+        trial = f"{tuned[name]:.2f}" if name in tuned else "-"
+        lines.append(f"| {name} | {seeds} | {np.mean(by_task):.2f} | {trial} |")
+    lines.append("")
+    return lines, out
 
 
 def main(argv: list[str] | None = None) -> None:

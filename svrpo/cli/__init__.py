@@ -99,7 +99,9 @@ def make_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--root", default="runs", help="sweep root directory (default runs)")
     sweep.add_argument("--jobs", default="auto",
                        help="runs at a time: auto (as many as their sampling workers fit in the cores) or N")
-    sweep.add_argument("--steps", type=int, default=None, help="total environment steps per run")
+    sweep.add_argument("--steps", type=int, default=None,
+                       help="each run's budget in environment steps: it trains while one more whole "
+                            "iteration fits (svrpo tune's rule)")
     sweep.add_argument("--dry-run", action="store_true", help="list the runs and their status only")
     sweep.add_argument("--no-reuse", action="store_true",
                        help="train every new run, even one whose exact config already finished under "

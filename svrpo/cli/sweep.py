@@ -61,8 +61,9 @@ def parse_seed_option(text: str) -> int | list[int]:
 
 
 def run(args: argparse.Namespace, extra: list[str]) -> int:
-    from svrpo.experiments import RunStatus, load_spec, plan_all, run_sweep, status
+    from svrpo.experiments import RunStatus, load_spec, plan_all, run_sweep
     from svrpo.experiments.backends import BackendError
+    from svrpo.experiments.budget import budget_status, to_budget
 
     overrides: dict[str, Any] = dict(parse_overrides(extra))
     if args.steps is not None:
@@ -80,7 +81,8 @@ def run(args: argparse.Namespace, extra: list[str]) -> int:
 
     signal.signal(signal.SIGTERM, raise_keyboard_interrupt)  # stop like Ctrl-C: runs checkpoint
     try:
-        if not args.dry_run and any(status(job) is not RunStatus.DONE for job in plan_all(specs, root)):
+        if not args.dry_run and any(budget_status(job, to_budget(job)) is not RunStatus.DONE
+                                    for job in plan_all(specs, root)):
             backend.connect()  # before anything is written: an unreachable cluster is bad input
         summary = run_sweep(specs, root, backend, dry_run=args.dry_run, reuse=not args.no_reuse)
     except KeyboardInterrupt:

@@ -17,6 +17,10 @@ A YAML spec has the same fields (`name`, `tasks`, `presets`, `seeds`, `scale`, o
     seeds: 5            # seeds 0..4, or a list such as [0, 3, 7]
     scale: laptop
     overrides: {num_workers: 1, total_steps: 200000}
+
+`total_steps` is each run's budget in environment steps, for every preset: a run trains while one
+more whole iteration fits in it (svrpo.experiments.budget, the rule of `svrpo tune`), so a
+fresh-sample run whose inner loops stop early trains more iterations than total_steps // S.
 """
 
 from __future__ import annotations
@@ -55,7 +59,8 @@ class ExperimentSpec:
     scale: Scale = "laptop"
     """`laptop` or `paper` (svrpo.presets.make_preset)."""
     overrides: dict[str, Any] = field(default_factory=dict)
-    """Config fields set on every run after the preset, already converted to their types."""
+    """Config fields set on every run after the preset, already converted to their types;
+    total_steps is the step budget (svrpo.experiments.budget)."""
 
     @property
     def directory(self) -> str:

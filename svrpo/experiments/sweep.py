@@ -1,4 +1,11 @@
-"""Run a sweep: plan the grid, skip finished runs, resume partial ones, show runs done / total."""
+"""Run a sweep: plan the grid, skip finished runs, resume partial ones, show runs done / total.
+
+Every run's budget is in environment steps (its config's total_steps), by the rule `svrpo tune`
+trains by (svrpo.experiments.budget): a run trains while one more whole iteration of
+S = Config.steps_per_iteration steps fits in the budget, so it ends with b - S < s <= b steps.
+A fresh-sample run whose inner loops stopped early is short of that after total_steps // S
+iterations; the sweep trains it on in stages (config.json's total_steps grows) until it is not.
+"""
 
 from __future__ import annotations
 
@@ -13,6 +20,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from svrpo.experiments.backends import Backend
+from svrpo.experiments.budget import budget_status, extend_config, to_budget
 from svrpo.experiments.jobs import (
     JobResult,
     RunJob,
@@ -21,7 +29,6 @@ from svrpo.experiments.jobs import (
     identical_finished_run,
     plan_all,
     prepare,
-    status,
 )
 from svrpo.experiments.specs import ExperimentSpec, SpecError, describe_seeds
 from svrpo.rundir.run_lock import exclusive_writer, record_holder
@@ -73,10 +80,11 @@ def run_sweep(spec: ExperimentSpec | Sequence[ExperimentSpec], root: Path, backe
         raise SpecError("a sweep needs at least one spec")
     if root.exists() and not root.is_dir():
         raise SpecError(f"the sweep root {root} is not a directory")
-    jobs = plan_all(specs, root)
+    planned = plan_all(specs, root)
     for task in dict.fromkeys(task for one in specs for task in one.tasks):
         env_info(task)  # EnvError for an unknown task, before anything is written
-    statuses = [status(job) for job in jobs]
+    jobs = [to_budget(job) for job in planned]
+    statuses = [budget_status(one, job) for one, job in zip(planned, jobs, strict=True)]
     counts = Counter(statuses)
     todo = [job for job, state in zip(jobs, statuses, strict=True) if state is not RunStatus.DONE]
     for one in specs:
@@ -93,9 +101,10 @@ def run_sweep(spec: ExperimentSpec | Sequence[ExperimentSpec], root: Path, backe
                for job, state in zip(jobs, statuses, strict=True) if state is RunStatus.NEW}
     copies = {run_dir: source for run_dir, source in sources.items() if source is not None}
     if dry_run:
-        for job, state in zip(jobs, statuses, strict=True):
+        for budget, job, state in zip(planned, jobs, statuses, strict=True):
             copy = f", copy of {copies[job.run_dir]}" if job.run_dir in copies else ""
-            fresh = (f" + up to {job.config.steps_per_iteration - job.config.batch_size} fresh"
+            fresh = (f" + up to {job.config.steps_per_iteration - job.config.batch_size} fresh; "
+                     f"more while one fits in {budget.config.total_steps} steps"
                      if job.config.fresh_samples else "")
             print(f"{state.value:8s} {job.run_dir}  ({job.config.iterations} iterations x "
                   f"N={job.config.batch_size}{fresh}, {job.config.num_workers} workers{copy})")
@@ -109,12 +118,15 @@ def run_sweep(spec: ExperimentSpec | Sequence[ExperimentSpec], root: Path, backe
         except OSError as error:
             raise SpecError(f"cannot write the sweep root {root}: {error.strerror or error}") from None
         record_holder(root)
-        return _run_todo(todo, jobs, copies, counts, summary, root, backend)
+        budgets = {job.run_dir: job for job in planned}
+        return _run_todo(todo, jobs, copies, counts, summary, root, backend, budgets)
 
 
 def _run_todo(todo: list[RunJob], jobs: list[RunJob], copies: dict[Path, Path], counts: Counter[RunStatus],
-              summary: SweepSummary, root: Path, backend: Backend) -> SweepSummary:
-    """run_sweep's writing half, under the sweep root's lock: copy, prepare and train the runs."""
+              summary: SweepSummary, root: Path, backend: Backend,
+              budgets: dict[Path, RunJob]) -> SweepSummary:
+    """run_sweep's writing half, under the sweep root's lock: copy, prepare and train the runs
+    (`budgets`: each run's job with the spec's step budget as total_steps)."""
     for job in todo:
         if job.run_dir in copies:
             adopt(job, copies[job.run_dir])
@@ -125,22 +137,31 @@ def _run_todo(todo: list[RunJob], jobs: list[RunJob], copies: dict[Path, Path], 
                            reused=len(copies))
     if not todo:
         return summary
-    for job in todo:
-        prepare(job)
     _say(f"running {len(todo)} runs: {backend.describe()}; each run logs to RUN_DIR/train.log")
-    failed = _run_with_progress(todo, backend, len(jobs), counts[RunStatus.DONE] + len(copies), root)
+    failed = _run_with_progress(todo, backend, len(jobs), counts[RunStatus.DONE] + len(copies), root, budgets)
     return dataclasses.replace(summary, failed=tuple(failed))
 
 
 def _run_with_progress(todo: list[RunJob], backend: Backend, total: int, done: int,
-                       root: Path) -> list[JobResult]:
+                       root: Path, budgets: dict[Path, RunJob]) -> list[JobResult]:
+    """Train `todo` in stages: a run that finished its iterations short of its step budget
+    (to_budget gives it more total_steps) goes into the next stage instead of counting as done."""
     bar = tqdm(total=total, initial=done, unit="run", desc="runs done", file=sys.stderr,
                dynamic_ncols=True, mininterval=0)
     failed: list[JobResult] = []
+    current: dict[Path, RunJob] = {}  # the stage being trained, by run directory
+    next_stage: list[RunJob] = []
 
     def on_done(result: JobResult) -> None:
         name = _relative(result.run_dir, root)
         if result.ok:
+            budget, more = budgets[result.run_dir], to_budget(budgets[result.run_dir])
+            if more.config.total_steps > current[result.run_dir].config.total_steps:
+                bar.write(f"{name}: short of its budget of {budget.config.total_steps} steps "
+                          f"(its inner loops stopped early): training on to {more.config.iterations} "
+                          "iterations", file=sys.stderr)
+                next_stage.append(more)
+                return
             bar.write(f"finished {name} in {result.seconds:.0f} s", file=sys.stderr)
         else:
             failed.append(result)
@@ -149,7 +170,14 @@ def _run_with_progress(todo: list[RunJob], backend: Backend, total: int, done: i
         bar.update(1)
 
     try:
-        backend.run_all(todo, on_done)
+        while todo:
+            current.update((job.run_dir, job) for job in todo)
+            for job in todo:
+                extend_config(job)  # only total_steps grows: the run resumes from its checkpoint
+                prepare(job)
+            backend.run_all(todo, on_done)
+            todo = list(next_stage)
+            next_stage.clear()
     finally:
         bar.close()
     return failed

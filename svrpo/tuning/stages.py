@@ -1,6 +1,7 @@
 """Train a trial's runs in stages of the step budget, and read their returns at a rung.
 
-The budget is counted in environment steps. A stage with budget b gives each run
+The budget is counted in environment steps, by the rule `svrpo sweep` trains by too
+(svrpo.experiments.budget): a stage with budget b gives each run
 total_steps = (k + floor((b - s_k) / S)) S, where k iterations and s_k steps are done and
 S = Config.steps_per_iteration is the most an iteration can sample; a fresh-sample estimator's
 iteration may sample less than S, so the stage is repeated until floor((b - s_k) / S) = 0: every
@@ -16,12 +17,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from svrpo.config import Config, differing_fields
+from svrpo.config import Config
 from svrpo.experiments.backends import Backend
+from svrpo.experiments.budget import extend_config, stage_total_steps
 from svrpo.experiments.jobs import JobResult, RunJob, RunStatus, prepare, status
-from svrpo.rundir.completion import PROGRESS_FILE, logged_iterations
 from svrpo.rundir.run_lock import LockedError, exclusive_writer
-from svrpo.rundir.run_record import CONFIG_FILE, write_config
 from svrpo.tuning.scoring import final_window_mean
 from svrpo.tuning.spec import TuneSpec
 
@@ -83,7 +83,7 @@ def train_to(spec: TuneSpec, active: list[TrialWork], budget: int, backend: Back
                     continue
                 job = RunJob(run_dir, config.replace(total_steps=total), spec.preset,
                              f"{spec.name}-trial{work.number}", spec.scale)
-                _extend(job)
+                extend_config(job)
                 if status(job) is not RunStatus.DONE:
                     jobs.append(job)
                     owners[run_dir] = work
@@ -94,42 +94,6 @@ def train_to(spec: TuneSpec, active: list[TrialWork], budget: int, backend: Back
             prepare(job)
         for result in backend.run_all(jobs):
             _record(result, owners[result.run_dir])
-
-
-def stage_total_steps(config: Config, run_dir: Path, budget: int) -> int | None:
-    """total_steps that trains the run in `run_dir` as far as whole iterations fit in `budget`
-    steps from where it stands, or None when not one more fits (or none ever: S > budget)."""
-    done, steps = logged_steps(run_dir / PROGRESS_FILE)
-    room = (budget - steps) // config.steps_per_iteration
-    if room < 1:
-        return None
-    return (done + room) * config.steps_per_iteration
-
-
-def logged_steps(progress: Path) -> tuple[int, int]:
-    """(k, s_k): the complete iterations `progress` logs and the environment steps they sampled
-    ((0, 0) without the file). A last row cut short by a killed writer is not counted: the run
-    resumes from its checkpoint before it."""
-    from svrpo.rundir.progress_log import read_progress
-
-    done = logged_iterations(progress)
-    if done == 0:
-        return 0, 0
-    return done, int(read_progress(progress, limit=done)[-1]["env_steps"])
-
-
-def _extend(job: RunJob) -> None:
-    """Rewrite the run's config.json when only total_steps grows (a new stage); a run made with
-    another config is left for status() to refuse."""
-    path = job.run_dir / CONFIG_FILE
-    if not path.is_file():
-        return
-    try:
-        existing = Config.from_json(path.read_text())
-    except (OSError, ValueError, TypeError):
-        return
-    if set(differing_fields(existing, job.config)) == {"total_steps"}:
-        write_config(job.run_dir, job.config)
 
 
 def _wait_for_writer(run_dir: Path, say: Callable[[str], None]) -> None:

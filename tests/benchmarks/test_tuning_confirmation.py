@@ -190,10 +190,23 @@ def test_report_answers_the_issues_questions_and_the_defaults_rule(tmp_path: Pat
     assert summary["reference"] == "trpo-d0.01 (figure1-modern)"
     # Normalised by today's TRPO (final 100-102, untrained 0): tuned SVRPO's IQM is about 1.5.
     assert summary["aggregate"]["iqm"]["svrpo (tuned)"]["value"] == pytest.approx(1.5, abs=0.03)
+    # Each answer with its reading at equal environment steps beside it.
     assert ("| does tuned STORM-PG beat tuned TRPO? P(stormpg (tuned) > trpo (tuned)) | 0.00 [0.00, 0.00] | "
-            "trpo (tuned) ahead |") in lines
+            "trpo (tuned) ahead | 0.00 [0.00, 0.00] |") in lines
     assert ("| does our tuned TRPO beat rl-zoo's tuned TRPO? P(trpo (tuned) > trpo (zoo)) | "
-            "0.00 [0.00, 0.00] | trpo (zoo) ahead |") in lines
+            "0.00 [0.00, 0.00] | trpo (zoo) ahead | 0.00 [0.00, 0.00] |") in lines
+    # The steps each configuration's runs sampled: every fixture run is 10 iterations of
+    # S = 2,048 steps, so a whole iteration more fits in PROTOCOL's 1M: all six are short.
+    sampled = summary["steps_sampled"]
+    assert sampled["trpo (tuned)"] == {"runs": 6, "fewest": 20_480, "mean": 20_480.0, "most": 20_480,
+                                       "short": 6}
+    assert "| trpo (tuned) | 6 | 20,480 | 20,480 | 20,480 | 100% | 6 of 6 |" in lines
+    # The tuning's objective on the tuning tasks present (Hopper and Walker2d here), from the
+    # references of trpo.yaml: tuned svrpo's returns are 150-152 on both.
+    hopper, walker = (13.7, 2247.9), (-1.1, 2791.9)
+    expected = sum(((151.0 - low) / (high - low)) for low, high in (hopper, walker)) / 2
+    assert summary["tuning_tasks"]["svrpo (tuned)"]["score"] == pytest.approx(expected)
+    assert summary["tuning_tasks"]["svrpo (tuned)"]["tuning_score"] == pytest.approx(1.2635, abs=1e-4)
     assert set(summary["per_task"]["Hopper-v5"]) == {
         "trpo (tuned)", "svrpo (tuned)", "stormpg (tuned)", "trpo (zoo)", "trpo-d0.01 (figure1-modern)",
         "svrpo (figure1-modern)", "stormpg-b256 (fs-confirm)"}

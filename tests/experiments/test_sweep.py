@@ -432,3 +432,72 @@ def test_runs_archived_without_checkpoints_are_skipped_and_partial_ones_resume(t
     assert refused.returncode == 2 and "holds 3 iterations, its config asks for 2" in refused.stderr
     assert len(refused.stderr.strip().splitlines()) == 1, refused.stderr
     assert _snapshot(fresh) == before
+
+
+FRESH_YAML = """\
+name: fresh
+tasks: [InvertedPendulum-v5]
+presets: [stormpg]
+seeds: 1
+scale: laptop
+overrides:
+  batch_size: 1000
+  minibatch_size: 250
+  inner_steps: 5
+  kl_step: 0.01
+  max_backtracks: 1
+  total_steps: 10000
+  num_workers: 1
+  envs_per_worker: 2
+  eval_every: 0
+  checkpoint_every: 1
+"""
+"""stormpg (a fresh-sample estimator; inner_stop failed_search) with each inner step's KL radius
+the whole budget and one backtrack: its inner loops stop early, so an iteration samples less
+than S = N + (J - 1) m = 2,000 steps (measured: 1,000-1,250)."""
+
+
+def test_a_fresh_sample_run_trains_until_its_steps_reach_the_budget(tmp_path: Path) -> None:
+    """`svrpo sweep` as a user runs it, with a 10,000-step budget: stormpg, whose early-stopped
+    inner loops sample less than S, trains past total_steps // S = 5 iterations until not one
+    iteration of S more fits (the tuner's rule: b - S < steps <= b), its config.json holding the
+    iteration cap (a preset whose iterations sample exactly S keeps total_steps = b and its
+    b // S iterations: the tests above). Run again, nothing is touched; a run interrupted in its
+    extension resumes to the same rows."""
+    spec = tmp_path / "fresh.yaml"
+    spec.write_text(FRESH_YAML)
+    root = tmp_path / "runs"
+    first = _sweep(spec, root)
+    assert first.returncode == 0, first.stderr
+    assert "1 runs: 0 already done (skipped), 0 resumed, 1 started; 1 finished" in first.stdout
+    base = root / "fresh-laptop" / "InvertedPendulum-v5"
+    budget, most = 10_000, 2_000  # S = N + (J - 1) m
+    storm = base / "stormpg" / "seed0"
+    assert "short of its budget of 10000 steps" in first.stderr
+    steps = [int(row["env_steps"]) for row in progress_rows(storm)]
+    # The premise: at the fixed iteration count (the old sweep) the run was short of the budget
+    # by more than an iteration.
+    assert steps[budget // most - 1] <= budget - most
+    assert budget - most < steps[-1] <= budget and len(steps) > budget // most
+    config = json.loads((storm / "config.json").read_text())
+    assert config["total_steps"] == len(steps) * most
+
+    before = _snapshot(root)
+    again = _sweep(spec, root)
+    assert again.returncode == 0 and "1 runs: 1 already done (skipped)" in again.stdout, again.stderr
+    assert _snapshot(root) == before
+
+    # Interrupted in its last stage (an extension), after its last row but one: that row's
+    # checkpoint and the last row gone, config.json (the stage's total_steps) kept.
+    original = progress_rows(storm)
+    keep = len(original) - 1
+    assert keep > budget // most
+    for path in (storm / "checkpoints").glob("iter_*.pt"):
+        if int(path.stem.removeprefix("iter_")) > keep:
+            path.unlink()
+    lines = (storm / "progress.csv").read_text().splitlines(keepends=True)
+    (storm / "progress.csv").write_text("".join(lines[:keep + 1]))
+    resumed = _sweep(spec, root)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "1 runs: 0 already done (skipped), 1 resumed, 0 started; 1 finished" in resumed.stdout
+    assert without_clock(progress_rows(storm)) == without_clock(original)

@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 from unittest import mock
 
+from svrpo.experiments.budget import extend_config
 from svrpo.experiments.jobs import JobResult, RunJob
 from svrpo.presets import make_preset
 from svrpo.rundir.run_record import CONFIG_FILE, write_config
@@ -69,11 +70,11 @@ def test_the_config_is_rewritten_only_when_total_steps_alone_grows(tmp_path: Pat
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     write_config(run_dir, config)
-    stages._extend(RunJob(run_dir, config.replace(total_steps=4 * S), "trpo", "t", "modern"))
+    extend_config(RunJob(run_dir, config.replace(total_steps=4 * S), "trpo", "t", "modern"))
     assert (run_dir / CONFIG_FILE).read_text() == config.replace(total_steps=4 * S).to_json() + "\n"
     # Another field changed too: left for status() to refuse, the file untouched.
     before = (run_dir / CONFIG_FILE).read_text()
-    stages._extend(RunJob(run_dir, config.replace(total_steps=6 * S, gae_lambda=0.9), "trpo", "t", "modern"))
+    extend_config(RunJob(run_dir, config.replace(total_steps=6 * S, gae_lambda=0.9), "trpo", "t", "modern"))
     assert (run_dir / CONFIG_FILE).read_text() == before
 
 
