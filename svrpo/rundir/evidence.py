@@ -268,6 +268,18 @@ def unpack(sweep: Path, target: Path, check: bool = True) -> int:
     return len(files)
 
 
+def unpack_in_place(sweep: Path) -> list[str]:
+    """Turn a packed sweep back into its run directories where it lies (to add runs, then pack
+    again); the kept checkpoints' paths under the sweep, for `pack(keep=...)`."""
+    manifest = read_manifest(sweep)
+    with tempfile.TemporaryDirectory() as scratch:
+        unpack(sweep, Path(scratch), check=True)
+        for rel in [*manifest["packed"], MANIFEST]:
+            (sweep / rel).unlink()
+        shutil.copytree(scratch, sweep, dirs_exist_ok=True)
+    return list(manifest["kept_checkpoints"])
+
+
 def materialise(root: Path, target: Path | None = None, only: Iterable[str] | None = None) -> Path:
     """A directory of ordinary run directories for root: root itself when nothing under it is
     packed; else `target` (default: a temporary directory removed at exit) holding each packed
