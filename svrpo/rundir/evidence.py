@@ -280,24 +280,34 @@ def unpack_in_place(sweep: Path) -> list[str]:
     return list(manifest["kept_checkpoints"])
 
 
-def materialise(root: Path, target: Path | None = None, only: Iterable[str] | None = None) -> Path:
-    """A directory of ordinary run directories for root: root itself when nothing under it is
-    packed; else `target` (default: a temporary directory removed at exit) holding each packed
-    sweep unpacked and a symbolic link to every other entry of root. `only`: unpack just these
-    sweeps (by folder name; the others packed are left out), to save time on a large root."""
+def materialise(root: Path, target: Path | None = None, only: Iterable[str] | None = None,
+                copy: bool = False) -> Path:
+    """A directory of ordinary run directories for root (a root of sweeps, or one packed sweep):
+    root itself when nothing is packed and no target is given; else `target` (default: a
+    temporary directory removed at exit) holding each packed sweep unpacked and a symbolic link
+    to every other entry of root (one packed sweep: its runs, in target itself). `only`: unpack
+    just these sweeps (by folder name; the others packed are left out), for a large root.
+    `copy`: copy the other entries instead of linking them (a root a sweep will write into)."""
     root = Path(root)
-    entries = sorted(root.iterdir()) if root.is_dir() else []
-    if not any(is_packed(entry) for entry in entries):
+    entries = sorted(root.iterdir()) if root.is_dir() and not is_packed(root) else []
+    if target is None and not is_packed(root) and not any(is_packed(entry) for entry in entries):
         return root
     if target is None:
         target = Path(tempfile.mkdtemp(prefix="svrpo-evidence-"))
         atexit.register(shutil.rmtree, target, True)
     target.mkdir(parents=True, exist_ok=True)
+    if is_packed(root):  # one packed sweep
+        unpack(root, target, check=False)
+        return target
     wanted = None if only is None else set(only)
     for entry in entries:
         if is_packed(entry):
             if wanted is None or entry.name in wanted:
                 unpack(entry, target / entry.name, check=False)
+        elif copy and entry.is_dir():
+            shutil.copytree(entry, target / entry.name, dirs_exist_ok=True)
+        elif copy:
+            shutil.copy2(entry, target / entry.name)
         elif not (target / entry.name).exists():
             (target / entry.name).symlink_to(entry.resolve(), target_is_directory=entry.is_dir())
     return target
@@ -323,6 +333,8 @@ def main(argv: list[str] | None = None) -> None:
     out_parser = commands.add_parser("materialise", help="a root of ordinary run directories")
     out_parser.add_argument("root", type=Path)
     out_parser.add_argument("target", type=Path)
+    out_parser.add_argument("--copy", action="store_true",
+                            help="copy the unpacked sweeps instead of linking them (a root to run sweeps in)")
     verify_parser = commands.add_parser("verify", help="check packed sweeps against their manifests")
     verify_parser.add_argument("paths", nargs="+", type=Path, help="packed sweeps, or roots holding them")
     args = parser.parse_args(argv)
@@ -334,7 +346,7 @@ def main(argv: list[str] | None = None) -> None:
                       f"in {len(manifest['packed'])}, {len(manifest['kept_checkpoints'])} checkpoints kept, "
                       f"{len(manifest['dropped_checkpoints'])} dropped")
         elif args.command == "materialise":
-            print(materialise(args.root, args.target))
+            print(materialise(args.root, args.target, copy=args.copy))
         else:
             for path in args.paths:
                 sweeps = [path] if is_packed(path) else [p for p in sorted(path.iterdir()) if is_packed(p)]

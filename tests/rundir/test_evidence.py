@@ -107,3 +107,16 @@ def test_a_packed_file_that_changed_is_caught_by_verify(tmp_path: Path) -> None:
     packed.write_bytes(evidence.gzip_bytes(b"run," + HEADER.encode() + b"\nseed0,1,2048,0.5\n"))
     with pytest.raises(evidence.EvidenceError, match="sha256"):
         evidence.verify(sweep)
+
+
+def test_a_copied_root_holds_ordinary_files_and_one_packed_sweep_materialises_alone(tmp_path: Path) -> None:
+    root = tmp_path / "runs"
+    sweep = _sweep(root)
+    (root / "other-laptop").mkdir()
+    (root / "other-laptop" / "x.txt").write_text("x\n")
+    before = _files(sweep)
+    evidence.pack(sweep)
+    copied = evidence.materialise(root, tmp_path / "copied", copy=True)
+    assert not (copied / "other-laptop").is_symlink() and (copied / "other-laptop" / "x.txt").is_file()
+    alone = evidence.materialise(sweep)
+    assert _files(alone) == {rel: data for rel, data in before.items() if "checkpoints" not in rel}
