@@ -5,6 +5,8 @@ regenerate byte-identical from the packed form."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -50,3 +52,16 @@ def test_a_report_regenerates_byte_identical_from_the_packed_runs(
     out = ROOT / "results" / experiment
     assert "\n".join(lines) == (out / f"{name}.md").read_text()
     assert json.dumps(summary, indent=2) + "\n" == (out / f"{name}.json").read_text()
+
+
+@pytest.mark.parametrize("script", ["results/ant-anchor-gap/anchor_gap_report.py",
+                                    "results/swimmer-anchor-gap/swimmer_gap.py"])
+def test_an_anchor_gap_report_regenerates_byte_identical_from_the_packed_runs(
+        tmp_path: Path, script: str) -> None:
+    """The anchor-gap reports read ant-gap-* and swimmer-gap-* packed (and figure1-modern's trpo
+    as run directories), through the script's own materialise line."""
+    out = tmp_path / "report.md"
+    done = subprocess.run([sys.executable, script, "--runs", str(RUNS), "--out", str(out)], cwd=ROOT,
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert out.read_bytes() == (ROOT / script).parent.joinpath("report.md").read_bytes()
