@@ -18,6 +18,14 @@ or without their checkpoint.
     python benchmarks/archive_runs.py /work/runs results/runs
     python benchmarks/archive_runs.py /work/runs results/runs --checkpoint 'figure1-modern/*/trpo/*'
 
+`--pack` then stores each sweep of the archive that received runs in the compact form of
+svrpo/rundir/evidence.py (one progress.csv.gz and one runs.json.gz per task/preset, a
+MANIFEST.json; the kept checkpoints stay as files), which is how a finished sweep is committed
+(results/README.md); a sweep already packed there is unpacked first and packed again with its
+new runs, keeping the checkpoints it kept.
+
+    python benchmarks/archive_runs.py /work/runs results/runs --pack --read-by benchmarks/screening_report.py
+
 `--partial` archives the unfinished runs instead (their newest readable checkpoint, with the
 same files), so that background runs survive the end of a session on a machine whose run root
 is not kept: commit the archive (results/partial-runs), copy it back into the sweep root at the
@@ -38,7 +46,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 
 from svrpo.config import Config  # noqa: E402
-from svrpo.rundir import checkpoint  # noqa: E402
+from svrpo.rundir import checkpoint, evidence  # noqa: E402
 from svrpo.rundir.completion import ProgressError, is_finished  # noqa: E402
 
 KEPT = ("config.json", "run.json", "progress.csv", "train.log")
@@ -136,10 +144,15 @@ def main() -> None:
     parser.add_argument("--checkpoint", action="append", default=[], metavar="PATTERN",
                         help="keep the final checkpoint of the finished runs whose path under ROOT "
                              "matches this glob (repeatable); by default no checkpoint is kept")
+    parser.add_argument("--pack", action="store_true",
+                        help="store each sweep that received runs in the compact form (see above)")
+    parser.add_argument("--read-by", action="append", default=[], metavar="SCRIPT",
+                        help="with --pack: a committed script that reads the sweep (its manifest says so)")
     args = parser.parse_args()
     if args.partial:
-        if args.checkpoint:
-            parser.error("--checkpoint is for finished runs; --partial always keeps the newest checkpoint")
+        if args.checkpoint or args.pack:
+            parser.error("--checkpoint and --pack are for finished runs; --partial keeps the newest "
+                         "checkpoint")
         count = archive_partial(args.root, args.archive)
         print(f"archived {count} unfinished runs of {args.root} in {args.archive}")
         return
@@ -156,9 +169,21 @@ def main() -> None:
     if without:
         parser.error(f"--checkpoint asks for the final checkpoint of {without[0]}, which has no "
                      "checkpoint (archived without it?); nothing copied")
+    sweeps = sorted({run.parts[0] for run in runs if len(run.parts) > 1}) if args.pack else []
+    kept_before = {sweep: evidence.unpack_in_place(args.archive / sweep) for sweep in sweeps
+                   if evidence.is_packed(args.archive / sweep)}
     copied, kept = archive_finished(args.root, args.archive, args.checkpoint)
     print(f"archived {copied} finished runs of {args.root} in {args.archive} "
           f"({kept} with their final checkpoint)")
+    for sweep in sweeps:
+        folder = args.archive / sweep
+        keep = list(kept_before.get(sweep, []))
+        for run in runs:
+            if run.parts[0] == sweep and keeps_checkpoint(run, args.checkpoint):
+                kept_files = (args.archive / run).glob("checkpoints/*")
+                keep += [path.relative_to(folder).as_posix() for path in kept_files]
+        manifest = evidence.pack(folder, sorted(set(keep)), args.read_by)
+        print(f"packed {folder}: {len(manifest['files'])} files in {len(manifest['packed'])}")
 
 
 if __name__ == "__main__":

@@ -19,6 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from svrpo.experiments.specs import PAPER_TASKS  # noqa: E402
+from svrpo.rundir.evidence import materialise  # noqa: E402
 from svrpo.rundir.progress_log import read_progress  # noqa: E402
 
 
@@ -55,7 +56,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("experiments", nargs="+",
                         help="experiment directories under RUNS, in the sweep's order")
     args = parser.parse_args(argv)
-    durations = median_durations(args.runs, args.experiments)
+    durations = median_durations(materialise(args.runs, only=args.experiments), args.experiments)
     tasks = [task for task in PAPER_TASKS if all((e, task) in durations for e in args.experiments)]
     per_sweep = sum(replay([durations[(e, t)] for t in tasks]) for e in args.experiments)
     one_queue = replay([durations[(e, t)] for t in tasks for e in args.experiments])

@@ -49,6 +49,7 @@ from svrpo.analysis.plotting import RunCurve, common_length, load_curve  # noqa:
 from svrpo.analysis.table import FINAL_FRACTION, cpu_per_run, t_interval  # noqa: E402
 from svrpo.experiments.specs import ExperimentSpec, load_spec  # noqa: E402
 from svrpo.rundir.completion import is_finished  # noqa: E402
+from svrpo.rundir.evidence import materialise  # noqa: E402
 from svrpo.rundir.progress_log import CPU_SECONDS  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
@@ -537,6 +538,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--confirmation", action="store_true",
                         help="the confirmation's report (confirmation.md/.json) instead of the screening's")
     args = parser.parse_args(argv)
+    args.runs = materialise(args.runs)  # packed sweeps (svrpo/rundir/evidence.py) as run directories
     screening = SCREENINGS[args.experiment]
     out = args.out_dir or RESULTS / screening.experiment
     out.mkdir(parents=True, exist_ok=True)

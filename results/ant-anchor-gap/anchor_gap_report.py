@@ -32,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import anchor_table  # noqa: E402
 
 from svrpo.analysis.table import t_interval  # noqa: E402
+from svrpo.rundir.evidence import materialise  # noqa: E402
 from svrpo.rundir.progress_log import read_progress  # noqa: E402
 
 MEASURES = anchor_table.MEASURES
@@ -180,6 +181,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--runs", type=Path, default=Path("results/runs"))
     parser.add_argument("--out", type=Path, default=Path("results/ant-anchor-gap/report.md"))
     args = parser.parse_args(argv)
+    args.runs = materialise(args.runs)  # packed sweeps (svrpo/rundir/evidence.py) as run directories
     paths = sorted(anchor_table.RESULTS.glob(anchor_table.DEFAULT_SB3))
     reports = [json.loads(path.read_text()) for path in paths]
     text = render(args.runs, reports)

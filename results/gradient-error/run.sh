@@ -10,7 +10,8 @@ HERE=$(cd "$(dirname "$0")" && pwd)
 REPO=$(cd "$HERE/../.." && pwd)
 ROOT=$(mkdir -p "${1:-ge-root}" && cd "${1:-ge-root}" && pwd)
 JOBS=${JOBS:-2}
-export R="$REPO/results/runs" ROOT
+R=$(python "$REPO/benchmarks/evidence.py" materialise "$REPO/results/runs" "$ROOT/runs")  # packed sweeps unpacked
+export R ROOT
 TASKS=(Hopper-v5 Walker2d-v5 HalfCheetah-v5)
 
 retrain() {  # TASK SEED: the 25% policy, 122 iterations of the archived run's config

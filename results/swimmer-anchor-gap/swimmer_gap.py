@@ -22,6 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from svrpo.analysis.table import t_interval  # noqa: E402
+from svrpo.rundir.evidence import materialise  # noqa: E402
 from svrpo.rundir.progress_log import read_progress  # noqa: E402
 
 FIRST, LAST = 196, 245
@@ -139,6 +140,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--runs", type=Path, default=Path("results/runs"))
     parser.add_argument("--out", type=Path, default=Path("results/swimmer-anchor-gap/report.md"))
     args = parser.parse_args(argv)
+    args.runs = materialise(args.runs)  # packed sweeps (svrpo/rundir/evidence.py) as run directories
     args.out.write_text("\n".join(report(args.runs)))
     print(f"wrote {args.out}")
 

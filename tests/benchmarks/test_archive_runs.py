@@ -103,3 +103,36 @@ def test_finished_runs_are_archived_without_checkpoints_unless_asked(tmp_path: P
     none = _archive(str(root), str(tmp_path / "none"), "--checkpoint", "exp/*/trpo/seed1")
     assert none.returncode == 2 and "which has no checkpoint" in none.stderr
     assert not (tmp_path / "none").exists()
+
+
+def test_a_packed_archive_materialises_to_the_runs_and_takes_new_runs(tmp_path: Path) -> None:
+    """--pack stores the archived sweep compactly (svrpo.rundir.evidence), with only the
+    checkpoint --checkpoint names; archiving a new run into it later unpacks, adds and re-packs."""
+    from svrpo.rundir import evidence
+
+    config = make_preset("trpo", "InvertedPendulum-v5", "laptop").replace(
+        batch_size=200, total_steps=400, num_workers=0, envs_per_worker=2, hidden_sizes=(8, 8),
+        eval_every=0, checkpoint_every=1)
+    root, archive = tmp_path / "root", tmp_path / "archive"
+    task = Path("exp") / "InvertedPendulum-v5" / "trpo"
+    for seed in (0, 1):
+        svrpo.train(config.replace(seed=seed), root / task / f"seed{seed}", show_progress=False)
+    done = _archive(str(root), str(archive), "--pack", "--checkpoint", "exp/*/trpo/seed1",
+                    "--read-by", "x.py")
+    assert done.returncode == 0, done.stderr
+    manifest = evidence.read_manifest(archive / "exp")
+    assert manifest["read_by"] == ["x.py"]
+    kept = task.relative_to("exp") / "seed1" / "checkpoints" / "iter_000002.pt"
+    assert manifest["kept_checkpoints"] == [kept.as_posix()]
+    assert not list((archive / "exp").rglob("progress.csv"))
+
+    svrpo.train(config.replace(seed=2), root / task / "seed2", show_progress=False)
+    again = _archive(str(root), str(archive), "--pack", "--checkpoint", "exp/*/trpo/seed1")
+    assert again.returncode == 0, again.stderr
+    out = evidence.materialise(archive, tmp_path / "out")
+    for seed in (0, 1, 2):
+        run = task / f"seed{seed}"
+        assert (out / run / "progress.csv").read_bytes() == (root / run / "progress.csv").read_bytes()
+        assert (out / run / "config.json").read_bytes() == (root / run / "config.json").read_bytes()
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*.pt")) == [
+        (task / "seed1" / "checkpoints" / "iter_000002.pt").as_posix()]

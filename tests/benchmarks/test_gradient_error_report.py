@@ -75,8 +75,9 @@ def test_the_labels_are_the_tools(tmp_path: Path) -> None:
     an --update-from replay; call A's are the estimator names."""
     from svrpo.analysis.gradient_error import replay_configs
     from svrpo.config import Config
+    from svrpo.rundir.evidence import materialise
 
-    runs = ROOT / "results" / "runs"
+    runs = materialise(ROOT / "results" / "runs", tmp_path / "runs")  # packed sweeps as run directories
     trpo = runs / "figure1-modern" / "Hopper-v5" / "trpo" / "seed0" / "config.json"
     sources = ["bt-confirm-budgeted-sarah-b0.02-modern/Hopper-v5/svrpo-budgeted/seed104",
                "bt-confirm-budgeted-sgd-b0.02-modern/Hopper-v5/svrpo-budgeted/seed104",

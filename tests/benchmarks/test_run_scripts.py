@@ -232,7 +232,7 @@ def test_gradient_error_retrains_the_25_percent_policies_then_makes_every_call_o
         _value(call, "--seed"), "--steps", "249856", "--num_workers", "1", "--envs_per_worker",
         "16", "--out", str(root / "policies" / _value(call, "--env") / f"seed{_value(call, '--seed')}-25"),
         "--no-progress"] for call in trains)
-    runs = ROOT / "results" / "runs"
+    runs = root / "runs"  # run.sh reads results/runs materialised there (svrpo/rundir/evidence.py)
     tasks = ("Hopper-v5", "Walker2d-v5", "HalfCheetah-v5")
     policy = {"0": "figure1-modern/{t}/trpo/seed{k}/checkpoints/iter_000489.pt",
               "25": None, "50": "bt-screen-trpo-d0.01-modern/{t}/trpo/seed{k}/checkpoints/iter_000245.pt",

@@ -45,12 +45,24 @@ def quoted_paths(text: str) -> set[str]:
     return paths
 
 
+def in_packed_sweep(path: str) -> bool:
+    """A run file, or a folder of them, of a packed sweep (results/runs/SWEEP/MANIFEST.json)."""
+    from svrpo.rundir import evidence
+
+    parts = Path(path).parts
+    if parts[:2] != ("results", "runs") or len(parts) < 4 or not evidence.is_packed(ROOT / Path(*parts[:3])):
+        return False
+    relative = "/".join(parts[3:])
+    files = evidence.read_manifest(ROOT / Path(*parts[:3]))["files"]
+    return any(name == relative or name.startswith(relative + "/") for name in files)
+
+
 def missing(path: str) -> bool:
     """Neither the path nor a glob of it exists (an output prefix, results/x/name, matches
-    results/x/name.md)."""
+    results/x/name.md), nor is it a run file of a packed sweep."""
     if any(char in path for char in "*?["):
         return not glob.glob(str(ROOT / path))
-    return not (ROOT / path).exists() and not glob.glob(str(ROOT / path) + ".*")
+    return not (ROOT / path).exists() and not glob.glob(str(ROOT / path) + ".*") and not in_packed_sweep(path)
 
 
 def _python_comments(path: Path) -> str:
@@ -62,6 +74,13 @@ def _python_comments(path: Path) -> str:
         tokens = tokenize.tokenize(io.BytesIO(handle.read()).readline)
         kept = (tokenize.COMMENT, tokenize.STRING)
         return "\n".join(token.string for token in tokens if token.type in kept)
+
+
+def test_a_packed_sweeps_run_files_count_as_there() -> None:
+    assert in_packed_sweep("results/runs/bt-screen-trpo-d0.02-modern/Hopper-v5/trpo/seed0/progress.csv")
+    assert in_packed_sweep("results/runs/bt-screen-trpo-d0.02-modern/Hopper-v5/trpo/seed0")
+    assert not in_packed_sweep("results/runs/bt-screen-trpo-d0.02-modern/Hopper-v5/trpo/seed9")
+    assert not missing("results/runs/bt-screen-trpo-d0.02-modern/Hopper-v5/trpo/seed0/config.json")
 
 
 def test_every_quoted_path_exists() -> None:
