@@ -129,7 +129,8 @@ def test_categorical_update_matches_reference(name: str) -> None:
     assert trace.accepted >= 1, trace  # the policy moved: the comparison is not vacuous
     torch.testing.assert_close(flat_parameters(policy), expected.parameters, rtol=0, atol=1e-10)
     assert torch.equal(generator.get_state(), expected.generator_state)
-    counters = (stats.inner_steps_attempted, stats.inner_steps_accepted, stats.backtracks, stats.stopped_early)
+    counters = (stats.inner_steps_attempted, stats.inner_steps_accepted, stats.backtracks,
+                stats.stopped_early)
     assert counters == (trace.attempted, trace.accepted, trace.backtracks, trace.stopped_early)
     assert stats.surrogate_improvement == pytest.approx(expected.surrogate_improvement, rel=0, abs=1e-12)
     assert stats.mean_kl == pytest.approx(expected.mean_kl, rel=0, abs=1e-12)
