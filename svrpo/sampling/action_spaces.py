@@ -82,7 +82,8 @@ class ActionSpec:
         """One draw per row: (B, head_size) network outputs -> (B, columns) float64 actions.
 
         Box: mean + exp(log_std) z, z ~ N(0, I) (one standard normal per column). Categoricals:
-        inverse CDF of softmax(logits) per categorical, one uniform per categorical. Bernoullis:
+        inverse CDF of softmax(logits) per categorical, one uniform u per categorical: the
+        first category whose cumulative probability exceeds u. Bernoullis:
         bit = u < sigmoid(logit), one uniform per bit.
         """
         if self.kind == "box":
@@ -91,14 +92,14 @@ class ActionSpec:
         if self.kind == "multi_binary":
             return (rng.random(head.shape) < _sigmoid(head)).astype(np.float64)
         uniforms = rng.random((head.shape[0], len(self.nvec)))
-        columns = []
+        actions = np.empty((head.shape[0], len(self.nvec)))
         for k, logits in enumerate(self._groups(head)):
-            cumulative = np.cumsum(_softmax(logits), axis=1)
-            # The first category whose cumulative probability exceeds u (the last one when
-            # rounding leaves the total just below u).
-            index = (cumulative <= uniforms[:, k:k + 1]).sum(axis=1)
-            columns.append(np.minimum(index, logits.shape[1] - 1))
-        return np.stack(columns, axis=1).astype(np.float64)
+            # Inverse CDF on the unnormalised weights exp(logit - max): the category is the
+            # number of cumulative weights at or below u times their total (< n by construction).
+            cumulative = np.cumsum(np.exp(logits - logits.max(axis=1, keepdims=True)), axis=1)
+            threshold = uniforms[:, k:k + 1] * cumulative[:, -1:]
+            actions[:, k] = (cumulative[:, :-1] <= threshold).sum(axis=1)
+        return actions
 
     def mode(self, head: np.ndarray) -> np.ndarray:
         """The most likely action per row (deterministic evaluation): (B, head_size) -> (B, columns).
@@ -113,15 +114,11 @@ class ActionSpec:
         return np.stack([logits.argmax(axis=1) for logits in self._groups(head)], axis=1).astype(np.float64)
 
     def _groups(self, head: np.ndarray) -> list[np.ndarray]:
-        """The (B, n_k) logit block of each categorical."""
-        edges = np.cumsum(self.nvec)[:-1]
-        return np.split(head, edges, axis=1)
-
-
-def _softmax(logits: np.ndarray) -> np.ndarray:
-    """Row-wise softmax of (B, n) logits, shifted by the row max so exp cannot overflow."""
-    shifted = np.exp(logits - logits.max(axis=1, keepdims=True))
-    return shifted / shifted.sum(axis=1, keepdims=True)
+        """The (B, n_k) logit block of each categorical (views, no copies)."""
+        if len(self.nvec) == 1:
+            return [head]
+        edges = np.cumsum((0, *self.nvec))
+        return [head[:, start:end] for start, end in zip(edges[:-1], edges[1:], strict=True)]
 
 
 def _sigmoid(logits: np.ndarray) -> np.ndarray:
