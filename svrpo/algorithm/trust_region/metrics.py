@@ -107,9 +107,9 @@ def autograd_fisher_vector_product(
         # allow_unused: a parameter grad-KL does not depend on (the discrete policies' empty
         # log_std) has a zero block.
         grads = torch.autograd.grad(grad_kl @ vector, params, retain_graph=True, allow_unused=True)
-        blocks = [(torch.zeros_like(p) if g is None else g).reshape(-1)
-                  for g, p in zip(grads, params, strict=True)]
-        return torch.cat(blocks) + damping * vector
+        per_parameter = [(torch.zeros_like(p) if g is None else g).reshape(-1)
+                         for g, p in zip(grads, params, strict=True)]
+        return torch.cat(per_parameter) + damping * vector
 
     return product
 
