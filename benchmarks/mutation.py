@@ -84,6 +84,11 @@ NORMALIZATION_TESTS = ("tests/models/test_normalization.py",)
 KL_DIMENSION_TESTS = ("tests/algorithm/test_update_kl_per_dimension.py",)
 """The trust region on the KL's mean over action dimensions against sb3-contrib's own numbers."""
 
+DISCRETE_TESTS = ("tests/models/test_distributions.py", "tests/algorithm/test_update_reference_discrete.py")
+"""The closed-form tests of the discrete distributions (svrpo/models/distributions.py: KL, entropy,
+Fisher, surrogate gradient; svrpo/sampling/action_spaces.py: draws, modes, controls) and the float64
+Algorithm 1 reference on a product of categoricals."""
+
 GRADIENT_ERROR_TESTS = ("tests/analysis/test_gradient_error.py",)
 """The closed-form tests of the gradient-error measurement (svrpo/analysis/gradient_split.py and
 gradient_error.py)."""
@@ -305,6 +310,36 @@ MUTANTS = [
     Mutant("probe-measures-svrg-as-the-estimator", "svrpo/algorithm/estimators.py",
            "            own = estimator.peek(indices)", "            own = svrg",
            "estimator_error reports SVRG's error whatever the estimator"),
+    # --- the discrete distributions (issue 54) -----------------------------------------------
+    Mutant("categorical-fisher-no-outer-product", "svrpo/models/distributions.py",
+           "return torch.cat([p * (u - (p * u).sum(-1, keepdim=True))",
+           "return torch.cat([p * (u - 0.0 * (p * u).sum(-1, keepdim=True))",
+           "the categorical Fisher block is diag(p) instead of diag(p) - p p^T", DISCRETE_TESTS),
+    Mutant("categorical-kl-reversed", "svrpo/models/distributions.py",
+           "total = total + (log_p.exp() * (log_p - log_q)).sum(-1)",
+           "total = total + (log_q.exp() * (log_q - log_p)).sum(-1)",
+           "KL(new || old) for categoricals (the same Hessian at the anchor)", DISCRETE_TESTS),
+    Mutant("categorical-entropy-unweighted", "svrpo/models/distributions.py",
+           "total = total - (log_p.exp() * log_p).sum(-1)",
+           "total = total - log_p.sum(-1) / log_p.shape[-1]",
+           "the categorical entropy averages -log p instead of weighting it by p", DISCRETE_TESTS),
+    Mutant("bernoulli-fisher-p", "svrpo/models/distributions.py",
+           "weights = p * (1.0 - p) / count", "weights = p / count",
+           "the Bernoulli Fisher block is p instead of p (1 - p)", DISCRETE_TESTS),
+    Mutant("bernoulli-kl-one-sided", "svrpo/models/distributions.py",
+           "return (p * (log_p - log_q) + (1.0 - p) * (log_not_p - log_not_q)).sum(-1)",
+           "return (p * (log_p - log_q)).sum(-1)",
+           "the Bernoulli KL without the term of the zero bit", DISCRETE_TESTS),
+    Mutant("categorical-draw-unnormalised", "svrpo/sampling/action_spaces.py",
+           "threshold = uniforms[:, k:k + 1] * cumulative[:, -1:]",
+           "threshold = uniforms[:, k:k + 1]",
+           "the workers' inverse CDF compares u with unnormalised weights", DISCRETE_TESTS),
+    Mutant("categorical-mode-argmin", "svrpo/sampling/action_spaces.py",
+           "logits.argmax(axis=1) for logits", "logits.argmin(axis=1) for logits",
+           "deterministic evaluation takes the least likely category", DISCRETE_TESTS),
+    Mutant("discrete-start-ignored", "svrpo/sampling/action_spaces.py",
+           "return indices[..., 0] + self.start[0]", "return indices[..., 0]",
+           "Discrete(n, start=s) receives the index instead of s + index", DISCRETE_TESTS),
     # --- trust_region ------------------------------------------------------------------------
     Mutant("step-length-without-2", "svrpo/algorithm/trust_region/metrics.py",
            "return (2.0 * max_kl / curvature) ** 0.5", "return (max_kl / curvature) ** 0.5",
@@ -313,9 +348,9 @@ MUTANTS = [
            "blocks[log_std_slot] = 2.0 * pieces[log_std_slot]",
            "blocks[log_std_slot] = 1.0 * pieces[log_std_slot]",
            "the log-std block of the Fisher is I instead of 2I"),
-    Mutant("fisher-precision", "svrpo/algorithm/trust_region/metrics.py",
-           "precision = torch.exp(-2.0 * policy.log_std) / count",
-           "precision = torch.exp(-1.0 * policy.log_std) / count",
+    Mutant("fisher-precision", "svrpo/models/distributions.py",
+           "precision = torch.exp(-2.0 * log_std) / count",
+           "precision = torch.exp(-1.0 * log_std) / count",
            "1/sigma instead of 1/sigma^2"),
     Mutant("fisher-no-damping", "svrpo/algorithm/trust_region/metrics.py",
            "return torch.cat(blocks) + damping * vector", "return torch.cat(blocks)",
@@ -561,7 +596,7 @@ MUTANTS = [
            "merged variance without the between-sample term (Chan et al.'s delta^2 c b / n)",
            NORMALIZATION_TESTS),
     Mutant("kl-per-dimension-ignored", "svrpo/algorithm/update.py",
-           "return policy.act_dim if kl_per_action_dimension else 1",
+           "return policy.distribution.kl_dimensions if kl_per_action_dimension else 1",
            "return 1",
            "kl_per_action_dimension leaves the trust region on the summed KL", KL_DIMENSION_TESTS),
     Mutant("init-head-gets-the-hidden-gain", "svrpo/models/initialization.py",
@@ -855,6 +890,7 @@ def main() -> None:
         "queue_tests": list(QUEUE_TESTS), "coverage_tests": list(COVERAGE_TESTS),
         "tuning_tests": list(TUNING_TESTS), "gradient_error_tests": list(GRADIENT_ERROR_TESTS),
         "normalization_tests": list(NORMALIZATION_TESTS), "kl_dimension_tests": list(KL_DIMENSION_TESTS),
+        "discrete_tests": list(DISCRETE_TESTS),
         "mutants": len(results),
         "killed": len(results) - len(survivors), "not_killed": survivors, "results": results,
     }

@@ -38,7 +38,8 @@ class Config:
     """Everything that defines a training run; saved as config.json beside its results."""
 
     env_id: str = "Hopper-v5"
-    """Gymnasium task id; any task with Box observation and action spaces."""
+    """Gymnasium task id: a 1-D Box observation space and a Box, Discrete, MultiDiscrete or MultiBinary
+    action space (docs/action-spaces.md)."""
     seed: int = 0
     """Seeds the policy initialisation, the mini-batch and Fisher subsets, and every environment."""
     total_steps: int = 1_000_000

@@ -109,7 +109,9 @@ MODERN_BACKTRACKING = {"backtrack_ratio": 0.8, "max_backtracks": 10}
 MODERN_INNER = {"minibatch_size": 512, "inner_steps": 8, "fisher_subsample": 1.0}
 """SVRPO's m, J, nu at the modern scale, by one rule fixed before any run: m = N / 4 and
 J = 8, so that m J = 2N (the laptop scale's rule), and nu = 1 (sb3-contrib's unsampled Fisher,
-as TRPO's here): the SVRPO presets differ from TRPO only in the estimator and the inner loop."""
+as TRPO's here): the SVRPO presets differ from TRPO only in the estimator and the inner loop.
+make_preset takes m = N / 4 of the scale's N (the 512 here is N = 2,048's; the zoo's CartPole and
+LunarLander have N = 1,024, so m = 256)."""
 
 
 # The zoo scale: rl-baselines3-zoo's tuned MuJoCo TRPO (hyperparams/trpo.yml at DLR-RM/rl-baselines3-zoo
@@ -130,12 +132,42 @@ ZOO_FIELDS: dict[str, Any] = {
     "backtrack_ratio": 0.8, "max_backtracks": 10,  # line_search_shrinking_factor, _max_iter
     "eval_every": 50,
 }
+# rl-zoo's tuned TRPO on the classic discrete tasks (hyperparams/trpo.yml at DLR-RM/rl-baselines3-zoo
+# 13a3fe74510342bc368b09d459d8117e470ab620; docs/action-spaces.md, results/discrete-anchor/PROTOCOL.md).
+# These entries set only n_envs, n_steps, n_timesteps and a few keys; every other key is
+# sb3-contrib TRPO's default, so each undoes what the zoo's MuJoCo defaults (ZOO_FIELDS) set
+# differently: cg_max_steps 15, n_critic_updates 10, no VecNormalize.
+ZOO_CLASSIC_DEFAULTS: dict[str, Any] = {
+    "cg_iters": 15, "baseline_epochs": 10,  # cg_max_steps 15, n_critic_updates 10 (sb3-contrib's)
+    "normalize_observations": False, "normalize_rewards": False,  # no `normalize` key
+}
+ZOO_CLASSIC_TASKS: dict[str, dict[str, Any]] = {
+    # n_envs 2 x n_steps 512; 1e5 steps -> 98 rollouts of 1,024; batch_size 512, cg_damping 1e-3,
+    # gae_lambda 0.98, n_critic_updates 20 (gamma 0.99, learning_rate 1e-3: as ZOO_FIELDS)
+    "CartPole": {"batch_size": 1024, "total_steps": 98 * 1024, "baseline_minibatch_size": 512,
+                 "cg_damping": 1e-3, "gae_lambda": 0.98, "baseline_epochs": 20},
+    # normalize: true; n_envs 2 x n_steps 1024; 1e5 steps -> 49 rollouts of 2,048
+    "Acrobot": {"total_steps": 49 * 2048, "normalize_observations": True, "normalize_rewards": True},
+    # normalize: true; n_envs 2 x n_steps 1024; 1e5 steps -> 49 rollouts; n_critic_updates 20
+    "MountainCar": {"total_steps": 49 * 2048, "normalize_observations": True, "normalize_rewards": True,
+                    "baseline_epochs": 20},
+    # n_envs 2 x n_steps 512; 2e5 steps -> 196 rollouts of 1,024; cg_damping 0.01,
+    # gae_lambda 0.98, n_critic_updates 15
+    "LunarLander": {"batch_size": 1024, "total_steps": 196 * 1024, "cg_damping": 0.01, "gae_lambda": 0.98,
+                    "baseline_epochs": 15},
+}
+"""rl-zoo's TRPO entries for CartPole-v1, Acrobot-v1, MountainCar-v0 and LunarLander-v3 (task
+family -> fields over ZOO_CLASSIC_DEFAULTS and ZOO_FIELDS)."""
+
+
 ZOO_TASK_FIELDS: dict[str, dict[str, Any]] = {
     "HalfCheetah": {"max_kl": 0.04},  # target_kl: 0.04
     "Swimmer": {"gamma": 0.9999},  # gamma: 0.9999 (VecNormalize's gamma follows it)
     "Humanoid": {"total_steps": 977 * 2048},  # n_timesteps 2e6
+    **{family: {**ZOO_CLASSIC_DEFAULTS, **fields} for family, fields in ZOO_CLASSIC_TASKS.items()},
 }
-"""rl-zoo's per-task overrides of its MuJoCo defaults (task family -> fields)."""
+"""rl-zoo's per-task overrides of its MuJoCo defaults (task family -> fields); for the classic
+discrete tasks, its entries on sb3-contrib's defaults (they do not inherit `mujoco-defaults`)."""
 
 
 # The tuned scale: issue 38's equal-budget tuning (results/equal-budget-tuning/PROTOCOL.md), each
@@ -212,7 +244,8 @@ def make_preset(name: str, env_id: str = DEFAULT_ENV, scale: Scale | None = None
         if name == "trpo":
             fields.update(estimator="full", inner_steps=1, fisher_subsample=1.0)
         else:
-            fields.update(estimator="svrg", **MODERN_INNER)
+            # m = N / 4 by the rule (512 at N = 2,048; the zoo's classic tasks have N = 1,024)
+            fields.update(estimator="svrg", **{**MODERN_INNER, "minibatch_size": fields["batch_size"] // 4})
             fields.update(_ABLATIONS[name])
         if scale == "tuned":
             fields.update(TUNED_FIELDS[TUNED_METHOD[name]])

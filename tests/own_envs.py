@@ -89,3 +89,58 @@ def drift_floats() -> gym.Env:
 
 def drift_list() -> gym.Env:
     return DriftEnv(keep_list=True)
+
+
+class MatchTarget(gym.Env):
+    """Discrete actions to learn: each step shows a random target (one-hot per component) and
+    pays the fraction of components the action matches; `length` steps per episode. The state
+    (target array, step counter) is plain attributes, so a resume restores it exactly.
+
+    kind "discrete": Discrete(n) (one component); "multi_discrete": MultiDiscrete([n] * size);
+    "multi_binary": MultiBinary(size) (n = 2). A policy that reads the target scores `length`; a
+    uniformly random one length / n.
+    """
+
+    def __init__(self, kind: str, size: int = 3, n: int = 3, length: int = 8) -> None:
+        n = 2 if kind == "multi_binary" else n
+        size = 1 if kind == "discrete" else size
+        self.kind, self.size, self.n, self.length = kind, size, n, length
+        self.observation_space = gym.spaces.Box(0.0, 1.0, (size * n,), np.float64)
+        self.action_space: gym.Space[Any] = {
+            "discrete": gym.spaces.Discrete(n),
+            "multi_discrete": gym.spaces.MultiDiscrete([n] * size),
+            "multi_binary": gym.spaces.MultiBinary(size),
+        }[kind]
+        self.target = np.zeros(size, dtype=np.int64)
+        self.steps = 0
+
+    def _observation(self) -> np.ndarray:
+        one_hot = np.zeros((self.size, self.n))
+        one_hot[np.arange(self.size), self.target] = 1.0
+        return one_hot.reshape(-1)
+
+    def reset(self, *, seed: int | None = None, options: Any = None) -> Any:
+        super().reset(seed=seed)
+        self.target = self.np_random.integers(0, self.n, self.size)
+        self.steps = 0
+        return self._observation(), {}
+
+    def step(self, action: Any) -> Any:
+        assert self.action_space.contains(action), action
+        chosen = np.atleast_1d(np.asarray(action, dtype=np.int64))
+        reward = float((chosen == self.target).mean())
+        self.target = self.np_random.integers(0, self.n, self.size)
+        self.steps += 1
+        return self._observation(), reward, self.steps >= self.length, False, {}
+
+
+def match_discrete() -> gym.Env:
+    return MatchTarget("discrete", n=4)
+
+
+def match_multi_discrete() -> gym.Env:
+    return MatchTarget("multi_discrete")
+
+
+def match_multi_binary() -> gym.Env:
+    return MatchTarget("multi_binary", size=4)

@@ -179,6 +179,48 @@ def test_zoo_scale_is_rl_zoos_trpo_yml_key_by_key(env_id: str) -> None:
         "estimator": ("full", "svrg"), "minibatch_size": (1000, 512), "inner_steps": (1, 8)}
 
 
+# rl-baselines3-zoo hyperparams/trpo.yml (13a3fe7): the classic discrete entries, as written there.
+ZOO_CLASSIC_YML = {
+    "CartPole-v1": {"n_envs": 2, "n_timesteps": 1e5, "n_steps": 512, "batch_size": 512, "cg_damping": 1e-3,
+                    "gae_lambda": 0.98, "gamma": 0.99, "learning_rate": 1e-3, "n_critic_updates": 20},
+    "Acrobot-v1": {"normalize": True, "n_envs": 2, "n_timesteps": 1e5, "n_steps": 1024},
+    "MountainCar-v0": {"normalize": True, "n_envs": 2, "n_timesteps": 1e5, "n_steps": 1024,
+                       "n_critic_updates": 20},
+    "LunarLander-v3": {"n_envs": 2, "n_timesteps": 2e5, "n_steps": 512, "cg_damping": 0.01,
+                       "gae_lambda": 0.98, "gamma": 0.99, "learning_rate": 1e-3, "n_critic_updates": 15},
+}
+SB3_CONTRIB_TRPO_ALL_DEFAULTS = {  # sb3-contrib TRPO.__init__ (0ca7fdd8), for the keys an entry leaves
+    **SB3_CONTRIB_TRPO_DEFAULTS, "normalize": False, "batch_size": 128, "gamma": 0.99, "gae_lambda": 0.95,
+    "learning_rate": 1e-3, "n_critic_updates": 10, "cg_max_steps": 15, "cg_damping": 0.1,
+    "sub_sampling_factor": 1,
+}
+
+
+@pytest.mark.parametrize("env_id", sorted(ZOO_CLASSIC_YML))
+def test_zoo_scale_on_the_classic_tasks_is_rl_zoos_entry_key_by_key(env_id: str) -> None:
+    """results/discrete-anchor/PROTOCOL.md's table: each classic task's rl-zoo entry on
+    sb3-contrib's defaults (not the MuJoCo defaults), and m = N / 4 for the SVRPO presets."""
+    zoo = {**SB3_CONTRIB_TRPO_ALL_DEFAULTS, **ZOO_CLASSIC_YML[env_id]}
+    trpo = make_preset("trpo", env_id, "zoo")
+    rollout = zoo["n_envs"] * zoo["n_steps"]
+    expected = {
+        "normalize_observations": zoo["normalize"], "normalize_rewards": zoo["normalize"],
+        "num_workers": 0, "envs_per_worker": zoo["n_envs"], "batch_size": rollout,
+        "total_steps": math.ceil(zoo["n_timesteps"] / rollout) * rollout,
+        "baseline_minibatch_size": zoo["batch_size"], "baseline_epochs": zoo["n_critic_updates"],
+        "baseline_lr": zoo["learning_rate"], "gamma": zoo["gamma"], "gae_lambda": zoo["gae_lambda"],
+        "fisher_subsample": 1 / zoo["sub_sampling_factor"], "cg_iters": zoo["cg_max_steps"],
+        "cg_damping": zoo["cg_damping"], "max_kl": zoo["target_kl"], "kl_per_action_dimension": True,
+        "backtrack_ratio": zoo["line_search_shrinking_factor"],
+        "max_backtracks": zoo["line_search_max_iter"],
+        "hidden_sizes": (64, 64), "baseline_hidden_sizes": (64, 64), "weight_init": "orthogonal",
+    }
+    assert {name: getattr(trpo, name) for name in expected} == expected
+    svrpo = make_preset("svrpo", env_id, "zoo")
+    assert differing_fields(trpo, svrpo) == {
+        "estimator": ("full", "svrg"), "minibatch_size": (1000, rollout // 4), "inner_steps": (1, 8)}
+
+
 def test_each_presets_default_scale_follows_the_confirmations_defaults_rule() -> None:
     """PROTOCOL.md section 8 and its 2026-12-06 section, read from the committed confirmation
     report (results/equal-budget-tuning/confirmation.json): a method's presets default to `tuned`

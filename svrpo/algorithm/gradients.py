@@ -15,13 +15,13 @@ import torch
 from svrpo.algorithm.objectives import SurrogateBatch, surrogate
 from svrpo.config import Surrogate
 from svrpo.models.parameters import flat_gradient, flat_parameters, set_flat_parameters
-from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.models.policy import MlpPolicy
 
 # indices -> mean over those rows of grad U_t at a fixed parameter vector; None = all N rows.
 SubsetGradient = Callable[[torch.Tensor | None], torch.Tensor]
 
 
-def subset_gradient(policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> SubsetGradient:
+def subset_gradient(policy: MlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> SubsetGradient:
     """indices -> grad of mean_{t in I} U_t at the policy's parameters when called (None: all rows)."""
 
     def gradient(indices: torch.Tensor | None) -> torch.Tensor:
@@ -40,13 +40,13 @@ class BatchGradients:
     rows, computed once.
     """
 
-    def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> None:
+    def __init__(self, policy: MlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> None:
         self.policy = policy
         """The live policy (its parameters are the inner iterate w_j)."""
         self.batch = batch
         """The iteration's batch."""
         self._snapshot_policy = copy.deepcopy(policy)  # w~: frozen for the whole iteration
-        self._scratch_policy: GaussianMlpPolicy | None = None  # built on the first `at`
+        self._scratch_policy: MlpPolicy | None = None  # built on the first `at`
         self._batch, self._kind = batch, kind
         self.at_current = subset_gradient(policy, batch, kind)
         self.at_snapshot = subset_gradient(self._snapshot_policy, batch, kind)

@@ -28,7 +28,7 @@ from svrpo.algorithm.run import Run
 from svrpo.algorithm.update import UpdateStats, update_policy
 from svrpo.models.baselines import explained_variance
 from svrpo.models.parameters import nonfinite_tensors
-from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.models.policy import MlpPolicy
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.sampler import Batch, steps_per_env
 
@@ -74,7 +74,7 @@ def advantage_scale(run: Run, batch: Batch) -> tuple[torch.Tensor, torch.Tensor]
 
 
 def fresh_surrogate_batch(run: Run, batch: Batch, scale: tuple[torch.Tensor, torch.Tensor],
-                          sampling_policy: GaussianMlpPolicy) -> PreparedBatch:
+                          sampling_policy: MlpPolicy) -> PreparedBatch:
     """A fresh batch drawn with the inner iterate w_j (run.policy now) made ready for the
     fresh-sample loop (svrpo/algorithm/fresh/gradients.py): advantages from the current baseline,
     standardised with the snapshot batch's mean and standard deviation (the scale g~ was computed
@@ -214,7 +214,7 @@ def run_iteration(run: Run) -> IterationResult:
     run.wall_time += time.perf_counter() - started
     return IterationResult(
         iteration=run.iteration, env_steps=run.env_steps, wall_time=run.wall_time, batch=batch,
-        update=update, eval_return=eval_return, entropy=float(run.policy.entropy().detach()),
+        update=update, eval_return=eval_return, entropy=float(run.policy.entropy(prepared.data.observations)),
         action_std=float(run.policy.log_std.detach().exp().mean()),
         nonfinite_batches=run.nonfinite_batches,
         time_sampling=sampled - started + update.fresh_sampling_time,

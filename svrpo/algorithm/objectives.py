@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import torch
 
 from svrpo.config import Surrogate
-from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
+from svrpo.models.policy import MlpPolicy
 
 
 @dataclass(frozen=True)
@@ -17,15 +17,16 @@ class SurrogateBatch:
     observations: torch.Tensor
     """(N, obs_dim) policy inputs (normalised if observation normalisation is on)."""
     actions: torch.Tensor
-    """(N, act_dim) sampled actions."""
+    """(N, act_dim) sampled actions (category indices and bits as floats for discrete spaces)."""
     advantages: torch.Tensor
     """(N,) standardised advantage estimates A_t."""
     old_log_prob: torch.Tensor
     """(N,) log pi_old(a_t|s_t) under the sampling policy."""
     old_mean: torch.Tensor
-    """(N, act_dim) means of the sampling policy, for KL(pi_old || pi_w)."""
+    """(N, head_size) the sampling policy's head outputs (Gaussian means, or logits), for
+    KL(pi_old || pi_w)."""
     old_log_std: torch.Tensor
-    """(act_dim,) log-std of the sampling policy."""
+    """(act_dim,) log-std of the sampling policy (empty, (0,), for the discrete distributions)."""
 
     def __len__(self) -> int:
         return int(self.advantages.shape[0])
@@ -58,7 +59,7 @@ def per_sample_surrogate(
     raise ValueError(f"unknown surrogate {kind!r}")
 
 
-def surrogate(policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> torch.Tensor:
+def surrogate(policy: MlpPolicy, batch: SurrogateBatch, kind: Surrogate) -> torch.Tensor:
     """U(w) = mean_t U_t(w) over the batch, a scalar with a graph to the policy."""
     log_prob = policy.log_prob(batch.observations, batch.actions)
     return per_sample_surrogate(log_prob, batch.old_log_prob, batch.advantages, kind).mean()
@@ -67,17 +68,26 @@ def surrogate(policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate)
 def mean_kl_from(
     anchor_mean: torch.Tensor,
     anchor_log_std: torch.Tensor,
-    policy: GaussianMlpPolicy,
+    policy: MlpPolicy,
     observations: torch.Tensor,
 ) -> torch.Tensor:
-    """Mean over states of KL(pi_anchor(.|s) || pi_w(.|s)), a scalar with a graph to the policy."""
+    """Mean over states of KL(pi_anchor(.|s) || pi_w(.|s)), a scalar with a graph to the policy.
+
+    anchor_mean: (B, head_size) the anchor's head outputs; anchor_log_std: (B, act_dim) or (B, 0).
+    """
     mean, log_std = policy(observations)
-    return gaussian_kl(anchor_mean, anchor_log_std, mean, log_std.expand_as(mean)).mean()
+    return policy.distribution.kl(anchor_mean, anchor_log_std, mean, per_row(log_std, mean)).mean()
 
 
-def old_log_prob(policy: GaussianMlpPolicy, observations: torch.Tensor,
+def per_row(log_std: torch.Tensor, head: torch.Tensor) -> torch.Tensor:
+    """The state-independent log_std (k,) as a (B, k) view, one row per row of head (B, ...);
+    k = 0 for the distributions without one."""
+    return log_std.expand(head.shape[0], -1)
+
+
+def old_log_prob(policy: MlpPolicy, observations: torch.Tensor,
                  actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(log pi(a|s), mean, log_std) of `policy` without a graph: the sampling policy's record."""
+    """(log pi(a|s), head, log_std) of `policy` without a graph: the sampling policy's record."""
     with torch.no_grad():
         mean, log_std = policy(observations)
-        return gaussian_log_prob(actions, mean, log_std), mean, log_std.clone()
+        return policy.distribution.log_prob(actions, mean, log_std), mean, log_std.clone()

@@ -42,7 +42,7 @@ from svrpo.algorithm.trust_region.anchors import KL_ANCHORS, KlAnchor
 from svrpo.algorithm.trust_region.line_search import LineSearchResult, backtracking_line_search
 from svrpo.algorithm.trust_region.metrics import METRICS, DirectionMetric, MatVec, fisher_vector_product
 from svrpo.config import Config, Surrogate
-from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.models.policy import MlpPolicy
 
 PART_REGISTRIES: dict[str, Mapping[str, Callable[[Config, RandomStreams], Any]]] = {
     "estimator": ESTIMATORS,
@@ -92,9 +92,9 @@ class UpdateParts:
     kl_anchor: KlAnchor
     stopping_rule: StoppingRule
     # Lower-level collaborators, replaced only by benchmarks (to time them) and tests.
-    gradients: Callable[[GaussianMlpPolicy, SurrogateBatch, Surrogate], BatchGradients] = BatchGradients
+    gradients: Callable[[MlpPolicy, SurrogateBatch, Surrogate], BatchGradients] = BatchGradients
     """Builds the iteration's gradient oracle at w~."""
-    fisher_product: Callable[[GaussianMlpPolicy, torch.Tensor, float], MatVec] = fisher_vector_product
+    fisher_product: Callable[[MlpPolicy, torch.Tensor, float], MatVec] = fisher_vector_product
     """(policy, observations, damping) -> v -> (F + damping I) v at the policy's current w."""
     line_search: Callable[..., LineSearchResult] = backtracking_line_search
     """The backtracking search under the KL bound (keyword arguments of backtracking_line_search)."""

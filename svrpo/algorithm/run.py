@@ -25,7 +25,7 @@ from svrpo.config import Config
 from svrpo.errors import CheckpointError, ConfigError, one_line
 from svrpo.models.baselines import Baseline, LinearFeatureBaseline, MlpValueFunction
 from svrpo.models.normalization import RewardNormalizer, RunningMeanStd
-from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.models.policy import MlpPolicy
 from svrpo.sampling.restarting import RestartingSampler
 from svrpo.sampling.sampler import Sampler, uncaptured_state
 
@@ -46,7 +46,7 @@ class Run:
     """The mutable state of a run: what a checkpoint holds and a resume restores."""
 
     config: Config
-    policy: GaussianMlpPolicy
+    policy: MlpPolicy
     baseline: Baseline
     normalizer: RunningMeanStd | None
     sampler: RestartingSampler
@@ -209,8 +209,8 @@ def build_run(config: Config, estimator: GradientEstimator | None = None) -> Run
     info = sampler.info
     torch.manual_seed(config.seed)
     streams = RandomStreams(config.seed)
-    policy = GaussianMlpPolicy(info.obs_dim, info.act_dim, config.hidden_sizes, config.init_log_std,
-                               config.weight_init)
+    policy = MlpPolicy(info.obs_dim, info.act_dim, config.hidden_sizes, config.init_log_std,
+                       config.weight_init, info.actions)
     baseline: Baseline
     if config.baseline == "linear":
         baseline = LinearFeatureBaseline(info.obs_dim)

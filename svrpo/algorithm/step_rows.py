@@ -27,7 +27,7 @@ from svrpo.algorithm.fresh.base import FreshGradientEstimator
 from svrpo.algorithm.fresh.gradients import FreshGradients
 from svrpo.algorithm.gradients import BatchGradients
 from svrpo.algorithm.objectives import SurrogateBatch
-from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.models.policy import MlpPolicy
 
 DrawWithIterate = Callable[[int], SurrogateBatch]
 """num_steps -> that many steps sampled with the policy's current parameters w_j, prepared as a
@@ -97,7 +97,7 @@ class FreshDraws:
     current w_j, and the estimator corrects g~ (or its last estimate) with importance weights on
     them. The variance probe does not run (its mini-batches are of the snapshot batch)."""
 
-    def __init__(self, estimator: FreshGradientEstimator, policy: GaussianMlpPolicy, batch: SurrogateBatch,
+    def __init__(self, estimator: FreshGradientEstimator, policy: MlpPolicy, batch: SurrogateBatch,
                  gradients: BatchGradients, draw_size: int, importance_weight_clip: float | None,
                  draw: DrawWithIterate | None) -> None:
         if draw is None:
@@ -122,7 +122,7 @@ class FreshDraws:
         return []
 
 
-def step_rows_for(estimator: GradientEstimator | FreshGradientEstimator, policy: GaussianMlpPolicy,
+def step_rows_for(estimator: GradientEstimator | FreshGradientEstimator, policy: MlpPolicy,
                   batch: SurrogateBatch, gradients: BatchGradients, minibatch_size: int,
                   importance_weight_clip: float | None, generator: torch.Generator,
                   draw: DrawWithIterate | None) -> StepRows:

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import torch
 
 from svrpo.algorithm.estimators import VarianceDiagnostic
-from svrpo.algorithm.objectives import SurrogateBatch, per_sample_surrogate
+from svrpo.algorithm.objectives import SurrogateBatch, per_row, per_sample_surrogate
 from svrpo.algorithm.parts import UpdateParts
 from svrpo.algorithm.step_rows import DrawWithIterate, draw_rows, step_rows_for
 from svrpo.algorithm.trust_region.anchors import KlBound
@@ -34,7 +34,7 @@ from svrpo.algorithm.trust_region.line_search import LineSearchResult
 from svrpo.algorithm.trust_region.metrics import MatVec, max_step_length
 from svrpo.config import Surrogate
 from svrpo.models.parameters import flat_parameters, set_flat_parameters
-from svrpo.models.policy import GaussianMlpPolicy, gaussian_kl, gaussian_log_prob
+from svrpo.models.policy import MlpPolicy
 
 
 @dataclass(frozen=True)
@@ -132,22 +132,23 @@ def _mean(values: list[float] | list[int]) -> float:
     return sum(values) / len(values) if values else math.nan
 
 
-def kl_divisor(policy: GaussianMlpPolicy, kl_per_action_dimension: bool) -> int:
-    """d = act_dim when the trust region's KL is the mean over action dimensions (sb3-contrib's
-    convention, DESIGN-NOTES 22), else 1: the KL summed over dimensions is divided by it."""
-    return policy.act_dim if kl_per_action_dimension else 1
+def kl_divisor(policy: MlpPolicy, kl_per_action_dimension: bool) -> int:
+    """d = the distribution's kl_dimensions (a Box's act_dim) when the trust region's KL is the
+    mean over action dimensions (sb3-contrib's convention, DESIGN-NOTES 22), else 1: the KL
+    summed over dimensions is divided by it."""
+    return policy.distribution.kl_dimensions if kl_per_action_dimension else 1
 
 
 class FullBatchEvaluator:
     """U(w) and mean KL(anchor || pi_w) on all rows of one batch at the policy's current w, from
-    one forward pass of the network (values only, GaussianMlpPolicy.activations). The KL is summed
+    one forward pass of the network (values only, MlpPolicy.activations). The KL is summed
     over action dimensions, or averaged over them with kl_per_action_dimension.
 
     `snapshot`: the snapshot rows' evaluator when `batch` holds rows drawn inside the loop; the
     balls of a bound around the sampling policy are then measured there too (KlBound's rows).
     """
 
-    def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, kind: Surrogate,
+    def __init__(self, policy: MlpPolicy, batch: SurrogateBatch, kind: Surrogate,
                  kl_per_action_dimension: bool = False, snapshot: FullBatchEvaluator | None = None) -> None:
         self.policy, self.batch, self.kind, self.snapshot = policy, batch, kind, snapshot
         self.kl_per_action_dimension = kl_per_action_dimension
@@ -161,7 +162,7 @@ class FullBatchEvaluator:
         """U(w) = mean_t U_t(w) on the batch (mean: the network's output, if already known)."""
         with torch.no_grad():
             mean = self.mean() if mean is None else mean
-            log_prob = gaussian_log_prob(self.batch.actions, mean, self.policy.log_std)
+            log_prob = self.policy.distribution.log_prob(self.batch.actions, mean, self.policy.log_std)
             value = per_sample_surrogate(log_prob, self.batch.old_log_prob, self.batch.advantages, self.kind)
             return float(value.mean())
 
@@ -170,12 +171,13 @@ class FullBatchEvaluator:
         """Mean over the batch of KL(N(anchor) || pi_w(.|s))."""
         with torch.no_grad():
             mean = self.mean() if mean is None else mean
-            log_std = self.policy.log_std.expand_as(mean)
-            return float(gaussian_kl(anchor_mean, anchor_log_std, mean, log_std).mean()) / self.kl_divisor
+            log_std = per_row(self.policy.log_std, mean)
+            kl = self.policy.distribution.kl(anchor_mean, anchor_log_std, mean, log_std)
+            return float(kl.mean()) / self.kl_divisor
 
     def sampling_kl(self) -> float:
         """Mean KL(pi_old || pi_w) on the batch, pi_old the policy that sampled the iteration."""
-        return self.kl(self.batch.old_mean, self.batch.old_log_std.expand_as(self.batch.old_mean))
+        return self.kl(self.batch.old_mean, per_row(self.batch.old_log_std, self.batch.old_mean))
 
     def objective_and_kl(self, bound: KlBound) -> Callable[[], tuple[float, float]]:
         """The line search's evaluate(): () -> (U(w), KL(anchor || pi_w)), one forward pass.
@@ -206,7 +208,7 @@ class FullBatchEvaluator:
 
 
 def update_policy(
-    policy: GaussianMlpPolicy,
+    policy: MlpPolicy,
     batch: SurrogateBatch,
     parts: UpdateParts,
     generator: torch.Generator,
@@ -281,7 +283,7 @@ NO_DIAGNOSTIC = VarianceDiagnostic(math.nan, math.nan, math.nan)
 """The probe's result when it does not run (its ratios are nan too)."""
 
 
-def damped_kl_hessian(parts: UpdateParts, policy: GaussianMlpPolicy, observations: torch.Tensor) -> MatVec:
+def damped_kl_hessian(parts: UpdateParts, policy: MlpPolicy, observations: torch.Tensor) -> MatVec:
     """v -> (H + cg_damping I) v at the policy's current w, H the Hessian of the trust region's KL:
     the Fisher F of the summed KL, or F / d of its mean over the d action dimensions
     (kl_per_action_dimension: sb3-contrib's hessian_vector_product, damping added to F / d)."""
@@ -289,7 +291,7 @@ def damped_kl_hessian(parts: UpdateParts, policy: GaussianMlpPolicy, observation
     if not loop.kl_per_action_dimension:
         return parts.fisher_product(policy, observations, loop.cg_damping)
     fisher = parts.fisher_product(policy, observations, 0.0)
-    dimensions, damping = policy.act_dim, loop.cg_damping
+    dimensions, damping = policy.distribution.kl_dimensions, loop.cg_damping
     return lambda vector: fisher(vector) / dimensions + damping * vector
 
 
@@ -305,7 +307,7 @@ class StepOutcome:
 
 
 def trust_region_step(
-    policy: GaussianMlpPolicy,
+    policy: MlpPolicy,
     batch: SurrogateBatch,
     evaluator: FullBatchEvaluator,
     gradient: torch.Tensor,

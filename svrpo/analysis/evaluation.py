@@ -1,7 +1,8 @@
-"""Deterministic (mean-action) evaluation of a saved policy, and an MP4 of its episodes.
+"""Deterministic (most likely action) evaluation of a saved policy, and an MP4 of its episodes.
 
-Episode k is reset with seed + k and driven by the policy's mean action (clipped and rescaled
-to the action box, as in training), so the same checkpoint and seed always give the same
+Episode k is reset with seed + k and driven by the policy's most likely action (a Gaussian's
+mean, clipped and rescaled to the action box as in training; the argmax category; the likelier
+bit), so the same checkpoint and seed always give the same
 returns, and `evaluate(run, n, config.seed + 1_000_003)` repeats the run's logged eval_return.
 
 Rendering happens in a child process (`python -m svrpo.analysis.evaluation`, see `record_video`):
@@ -25,7 +26,8 @@ import numpy as np
 from svrpo.config import Config
 from svrpo.errors import EvaluationError
 from svrpo.rundir import checkpoint
-from svrpo.sampling.envs import check_import_allowed, env_info, horizon, make_env, registered_id, scale_action
+from svrpo.sampling.action_spaces import ActionSpec, action_spec
+from svrpo.sampling.envs import check_import_allowed, env_info, horizon, make_env, registered_id
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 
 GL_BACKENDS = ("egl", "osmesa")
@@ -44,22 +46,25 @@ class LoadedPolicy:
     iteration: int
     env_steps: int
     action_low: np.ndarray
-    """(act_dim,) lower bounds of the task's action box."""
+    """(act_dim,) lower bounds of the task's action box (empty for a discrete action space)."""
     action_high: np.ndarray
+    actions: ActionSpec
+    """The task's action space (which distribution the policy is)."""
 
     def act(self, observation: np.ndarray, deterministic: bool = True,
             rng: np.random.Generator | None = None) -> np.ndarray:
         """The control to send to the env for one observation (or a (B, obs_dim) batch).
 
-        The Gaussian mean (deterministic) or a sample from the policy (rng, default a fresh
-        generator), clipped to [-1, 1] and rescaled to the action box, exactly as in training.
+        The most likely action (deterministic: a Gaussian's mean, the argmax category, the likelier
+        bit) or a sample from the policy (rng, default a fresh generator), turned into the env's
+        action exactly as in training (a Box's clipped to [-1, 1] and rescaled to the box).
         """
         batch = np.atleast_2d(np.asarray(observation, dtype=np.float64))
         if deterministic:
-            raw = self.snapshot.mean_action(batch)
+            raw = self.snapshot.deterministic_action(batch)
         else:
             raw = self.snapshot.sample_action(batch, rng if rng is not None else np.random.default_rng())
-        control = scale_action(raw, self.action_low, self.action_high)
+        control = self.actions.to_env(raw)
         return control[0] if np.ndim(observation) == 1 else control
 
 
@@ -108,7 +113,7 @@ def load_policy(path: str | os.PathLike[str], allow_import: Collection[str] = ()
     import torch
 
     from svrpo.models.normalization import RunningMeanStd
-    from svrpo.models.policy import GaussianMlpPolicy
+    from svrpo.models.policy import MlpPolicy
 
     path = Path(path)
     if path.is_dir():  # a run directory: its newest readable checkpoint, as `train --resume`
@@ -124,7 +129,8 @@ def load_policy(path: str | os.PathLike[str], allow_import: Collection[str] = ()
         config = Config.from_json(state["config"])
         check_import_allowed(config.env_id, allow_import, source)
         info = env_info(config.env_id, config.max_episode_steps)
-        policy = GaussianMlpPolicy(info.obs_dim, info.act_dim, config.hidden_sizes, config.init_log_std)
+        policy = MlpPolicy(info.obs_dim, info.act_dim, config.hidden_sizes, config.init_log_std,
+                           actions=info.actions)
         policy.load_state_dict(state["policy"])
         obs_mean: torch.Tensor | None = None
         obs_std: torch.Tensor | None = None
@@ -135,7 +141,7 @@ def load_policy(path: str | os.PathLike[str], allow_import: Collection[str] = ()
     except (KeyError, RuntimeError, ValueError, TypeError) as error:
         raise checkpoint.CheckpointError(f"{source} does not hold a usable policy: {error}") from None
     return LoadedPolicy(config, policy.snapshot(obs_mean, obs_std), source, int(state["iteration"]),
-                        int(state["env_steps"]), info.action_low, info.action_high)
+                        int(state["env_steps"]), info.action_low, info.action_high, info.actions)
 
 
 OnStep = Callable[[gym.Env, int], None]
@@ -144,19 +150,21 @@ OnStep = Callable[[gym.Env, int], None]
 def run_episodes(policy: LoadedPolicy, episodes: int, seed: int, env: gym.Env | None = None,
                  on_step: OnStep | None = None,
                  action_std: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(returns, lengths) of `episodes` mean-action episodes, episode k reset with seed + k.
+    """(returns, lengths) of `episodes` most-likely-action episodes, episode k reset with seed + k.
 
     `env` defaults to the training env (svrpo.sampling.envs.make_env); `on_step(env, step)` is called after
     each reset (step 0) and each env step (for rendering). With `action_std` ((act_dim,), in the
     policy's [-1, 1] units) the actions are sampled as in training, mean + action_std * z, with z
     drawn in episode k from np.random.default_rng([seed, k]): the same start states and the same
-    draws for every `action_std`, so episodes at different noise levels are paired.
+    draws for every `action_std`, so episodes at different noise levels are paired (a Box
+    policy only: ValueError for the others).
     """
     config = policy.config
     env = env if env is not None else make_env(config.env_id, config.max_episode_steps)
-    space = env.action_space
-    assert isinstance(space, gym.spaces.Box)  # make_env and env_info checked it
-    low, high = np.asarray(space.low, dtype=np.float64), np.asarray(space.high, dtype=np.float64)
+    actions = action_spec(config.env_id, env.action_space)  # make_env and env_info checked it
+    if action_std is not None and actions.kind != "box":
+        env.close()
+        raise ValueError(f"action_std needs a Box action space; {config.env_id!r} has a {actions.kind} one")
     returns = np.zeros(episodes, dtype=np.float64)
     lengths = np.zeros(episodes, dtype=np.int64)
     try:
@@ -167,10 +175,10 @@ def run_episodes(policy: LoadedPolicy, episodes: int, seed: int, env: gym.Env | 
             if on_step is not None:
                 on_step(env, 0)
             while not done:
-                action = policy.snapshot.mean_action(np.asarray(observation, dtype=np.float64)[None])[0]
-                if noise is not None:
-                    action = action + action_std * noise.standard_normal(action.shape)
-                observation, reward, terminated, truncated, _ = env.step(scale_action(action, low, high))
+                action = policy.snapshot.deterministic_action(np.asarray(observation, dtype=np.float64)[None])
+                if noise is not None and action_std is not None:
+                    action = action + action_std * noise.standard_normal(action.shape[1:])
+                observation, reward, terminated, truncated, _ = env.step(actions.to_env(action)[0])
                 returns[episode] += float(reward)
                 step += 1
                 done = bool(terminated or truncated)

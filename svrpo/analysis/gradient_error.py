@@ -62,7 +62,7 @@ from svrpo.analysis.gradient_split import (
 from svrpo.config import Config
 from svrpo.errors import CheckpointError, ConfigError
 from svrpo.models.parameters import flat_gradient, flat_parameters
-from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.models.policy import MlpPolicy
 
 if TYPE_CHECKING:
     from svrpo.algorithm.run import Run
@@ -102,7 +102,7 @@ class StepErrors:
 
 def replay_errors(
     name: str,
-    policy: GaussianMlpPolicy,
+    policy: MlpPolicy,
     batch: SurrogateBatch,
     reference: SurrogateBatch,
     reference_parts: int,
@@ -296,7 +296,7 @@ def measure_gradient_error(
             if config.fresh_samples:
                 sampling_policy, scale = copy.deepcopy(run.policy), advantage_scale(run, raw_batch)
 
-                def draw_fresh(num_steps: int, sampling_policy: GaussianMlpPolicy = sampling_policy,
+                def draw_fresh(num_steps: int, sampling_policy: MlpPolicy = sampling_policy,
                                scale: tuple[torch.Tensor, torch.Tensor] = scale) -> SurrogateBatch:
                     drawn = sample_frozen(run, num_steps)
                     return fresh_surrogate_batch(run, drawn, scale, sampling_policy).data

@@ -44,7 +44,8 @@ def make_parser() -> argparse.ArgumentParser:
                        help="start from a config file (preset, scale and fields, e.g. `svrpo tune`'s "
                        "best.yaml); flags and --field values still apply")
     train.add_argument("--preset", default=None, choices=PRESET_NAMES, help="default svrpo")
-    train.add_argument("--env", default=None, help="Gymnasium task id (Box spaces); default Hopper-v5")
+    train.add_argument("--env", default=None, help="Gymnasium task id (1-D Box observations; Box, Discrete, "
+                       "MultiDiscrete or MultiBinary actions); default Hopper-v5")
     train.add_argument("--scale", default=None, choices=SCALES,
                        help="default: the preset's; modern: sb3-contrib's TRPO settings; laptop and "
                        "paper: the paper's; zoo: rl-baselines3-zoo's tuned TRPO; tuned: this "

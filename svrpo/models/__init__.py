@@ -1,3 +1,4 @@
-"""The learned models: the Gaussian MLP policy, the baselines (critics), the observation
+"""The learned models: the MLP policy and its action distributions (Gaussian, categoricals,
+Bernoullis), the baselines (critics), the observation
 normaliser, and flat-parameter helpers.
 """

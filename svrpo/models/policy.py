@@ -1,19 +1,36 @@
-"""Gaussian MLP policy: tanh hidden layers, linear mean head, learned state-independent log-std."""
+"""MLP policy: tanh hidden layers, a linear head, and the action space's distribution over it.
+
+A Box gets a Gaussian with the head as its mean and a learned state-independent log-std; the
+discrete spaces get categoricals or Bernoullis over the head as logits (svrpo.models.distributions).
+"""
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 import torch
 from torch import nn
 
+from svrpo.models.distributions import (
+    ActionDistribution,
+    distribution_for,
+    gaussian_kl,
+    gaussian_log_prob,
+)
 from svrpo.models.initialization import POLICY_HEAD_GAIN, WeightInit, orthogonal_
+from svrpo.sampling.action_spaces import ActionSpec
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 
+__all__ = ["GaussianMlpPolicy", "MlpPolicy", "gaussian_kl", "gaussian_log_prob"]
 
-class GaussianMlpPolicy(nn.Module):
-    """pi_w(a|s) = N(mu_w(s), diag(exp(log_std))^2), the rllab GaussianMLPPolicy with adaptive std."""
+
+class MlpPolicy(nn.Module):
+    """pi_w(a|s) = D(head_w(s), log_std): D the action space's distribution (ActionDistribution).
+
+    For a Box, D = N(head_w(s), diag(exp(log_std))^2), the rllab GaussianMLPPolicy with adaptive
+    std; for Discrete, MultiDiscrete and MultiBinary, categoricals or Bernoullis over the logits
+    head_w(s), and log_std is an empty parameter (shape (0,)) so that every policy has the same
+    parameter layout [mean_net..., log_std] and the same state_dict keys.
+    """
 
     def __init__(
         self,
@@ -22,8 +39,15 @@ class GaussianMlpPolicy(nn.Module):
         hidden_sizes: tuple[int, ...] = (64, 64),
         init_log_std: float = 0.0,
         weight_init: WeightInit = "torch",
+        actions: ActionSpec | None = None,
     ) -> None:
         super().__init__()
+        self.actions = actions if actions is not None else ActionSpec("box", np.full(act_dim, -1.0),
+                                                                      np.full(act_dim, 1.0))
+        if self.actions.columns != act_dim:
+            raise ValueError(f"act_dim {act_dim} does not match the action space's "
+                             f"{self.actions.columns} columns")
+        self.distribution: ActionDistribution = distribution_for(self.actions)
         self.obs_dim = obs_dim
         self.act_dim = act_dim
         layers: list[nn.Module] = []
@@ -31,23 +55,25 @@ class GaussianMlpPolicy(nn.Module):
         for width in hidden_sizes:
             layers += [nn.Linear(in_features, width), nn.Tanh()]
             in_features = width
-        head = nn.Linear(in_features, act_dim)
+        head = nn.Linear(in_features, self.actions.head_size)
         # A small output layer keeps the initial mean near zero, so the first batch explores
-        # around the centre of the action box (as rllab and SB3 do).
+        # around the centre of the action box (as rllab and SB3 do); logits near zero make the
+        # first discrete policy nearly uniform.
         nn.init.uniform_(head.weight, -0.01, 0.01)
         nn.init.zeros_(head.bias)
         layers.append(head)
         self.mean_net = nn.Sequential(*layers)
         if weight_init == "orthogonal":
             orthogonal_([m for m in layers if isinstance(m, nn.Linear)], head_gain=POLICY_HEAD_GAIN)
-        self.log_std = nn.Parameter(torch.full((act_dim,), float(init_log_std)))
+        std_size = act_dim if self.actions.kind == "box" else 0
+        self.log_std = nn.Parameter(torch.full((std_size,), float(init_log_std)))
 
     def forward(self, observations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(B, obs_dim) -> (mean (B, act_dim), log_std (act_dim,))."""
+        """(B, obs_dim) -> (head (B, head_size): the means or logits, log_std (act_dim,) or (0,))."""
         return self.mean_net(observations), self.log_std
 
     def activations(self, observations: torch.Tensor) -> list[torch.Tensor]:
-        """[a_1, ..., a_{L-1}, mean]: every hidden layer's tanh output, then the mean; no autograd.
+        """[a_1, ..., a_{L-1}, head]: every hidden layer's tanh output, then the head; no autograd.
 
         The same network as forward, evaluated for the trust-region machinery (line search,
         Fisher products), which needs values only. (B, obs_dim) -> (B, width_l) per layer.
@@ -68,12 +94,14 @@ class GaussianMlpPolicy(nn.Module):
 
     def log_prob(self, observations: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
         """log pi_w(a_t|s_t) for each row, shape (B,)."""
-        mean, log_std = self(observations)
-        return gaussian_log_prob(actions, mean, log_std)
+        head, log_std = self(observations)
+        return self.distribution.log_prob(actions, head, log_std)
 
-    def entropy(self) -> torch.Tensor:
-        """Entropy of the (state-independent) action distribution, a scalar."""
-        return (self.log_std + 0.5 * math.log(2.0 * math.pi * math.e)).sum()
+    def entropy(self, observations: torch.Tensor) -> torch.Tensor:
+        """Mean entropy of the action distribution over the (B, obs_dim) states, a scalar (the
+        Gaussian's is state-independent and reads no state)."""
+        with torch.no_grad():
+            return self.distribution.mean_entropy(self.activations(observations)[-1], self.log_std)
 
     def snapshot(
         self,
@@ -90,7 +118,12 @@ class GaussianMlpPolicy(nn.Module):
             obs_mean=None if obs_mean is None else obs_mean.double().numpy().copy(),
             obs_std=None if obs_std is None else obs_std.double().numpy().copy(),
             obs_clip=obs_clip,
+            actions=self.actions,
         )
+
+
+GaussianMlpPolicy = MlpPolicy
+"""The name before discrete actions (a Box's MlpPolicy is the Gaussian MLP policy it was)."""
 
 
 def _tanh_in_place(values: torch.Tensor) -> torch.Tensor:
@@ -106,29 +139,3 @@ def _tanh_in_place(values: torch.Tensor) -> torch.Tensor:
         np.tanh(array, out=array)
         return values
     return values.tanh_()
-
-
-def gaussian_log_prob(
-    actions: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor
-) -> torch.Tensor:
-    """log N(a; mean, diag(exp(log_std))^2) summed over action dimensions, shape (B,)."""
-    z = (actions - mean) * torch.exp(-log_std)
-    return -(0.5 * z.pow(2) + log_std + 0.5 * math.log(2.0 * math.pi)).sum(dim=-1)
-
-
-def gaussian_kl(
-    old_mean: torch.Tensor,
-    old_log_std: torch.Tensor,
-    new_mean: torch.Tensor,
-    new_log_std: torch.Tensor,
-) -> torch.Tensor:
-    """KL(N_old || N_new) per row for diagonal Gaussians, shape (B,).
-
-    KL = sum_i [log s_new/s_old + (s_old^2 + (mu_old - mu_new)^2) / (2 s_new^2) - 1/2].
-    """
-    old_var = torch.exp(2.0 * old_log_std)
-    new_var = torch.exp(2.0 * new_log_std)
-    per_dim = (
-        new_log_std - old_log_std + (old_var + (old_mean - new_mean).pow(2)) / (2.0 * new_var) - 0.5
-    )
-    return per_dim.sum(dim=-1)

@@ -1,4 +1,4 @@
-"""Gymnasium environment construction, action rescaling and exact physics save/restore.
+"""Gymnasium environment construction, the spaces check and exact physics save/restore.
 
 This module must not import torch: rollout workers import it.
 """
@@ -16,6 +16,8 @@ import mujoco
 import numpy as np
 
 from svrpo.errors import EnvError
+from svrpo.sampling.action_spaces import ActionSpec, action_spec
+from svrpo.sampling.action_spaces import scale_action as scale_action  # importers of envs use it
 
 # The integration state is everything mj_step reads (qpos, qvel, act, warm-start, ctrl, applied
 # forces, ...): restoring it makes the next steps bit-identical, which qpos/qvel alone do not.
@@ -33,22 +35,24 @@ class EnvInfo:
     obs_dim: int
     """Length of the (1-D, continuous) observation vector."""
     act_dim: int
-    """Length of the (1-D, continuous) action vector."""
+    """Numbers stored per action in a batch (ActionSpec.columns): a Box's length, 1 for Discrete."""
     action_low: np.ndarray
-    """(act_dim,) lower bounds of the env's action box."""
+    """(act_dim,) lower bounds of the env's action box; empty for a discrete action space."""
     action_high: np.ndarray
-    """(act_dim,) upper bounds of the env's action box."""
+    """(act_dim,) upper bounds of the env's action box; empty for a discrete action space."""
     max_episode_steps: int
     """Time limit after which episodes are truncated (`horizon`)."""
+    actions: ActionSpec
+    """The action space: which policy distribution drives it (svrpo.sampling.action_spaces)."""
 
 
 def make_env(env_id: str, max_episode_steps: int | None = None) -> gym.Env:
-    """Create a Gymnasium env with continuous 1-D Box observation and action spaces.
+    """Create a Gymnasium env with a 1-D Box observation space and an action space a policy drives.
 
     max_episode_steps overrides the registered time limit; None keeps the task's own, or
     DEFAULT_HORIZON for a task that registers none (see `horizon`), so every env this project
     makes has a time limit. Raises EnvError for an unknown id (suggesting close matches) or for
-    spaces the Gaussian policy cannot drive.
+    spaces no policy distribution drives (action_spaces.action_spec).
     """
     env_id = registered_id(env_id)
     env = gym.make(env_id, max_episode_steps=horizon(env_id, max_episode_steps))
@@ -131,56 +135,41 @@ def registered_id(env_id: str) -> str:
     return env_id
 
 
-def _check_spaces(env_id: str, env: gym.Env) -> None:
-    """Raise EnvError unless both spaces are 1-D Boxes (Gaussian actions, flat observations)."""
-    for name, space in (("action", env.action_space), ("observation", env.observation_space)):
-        if not isinstance(space, gym.spaces.Box):
-            raise EnvError(
-                f"{env_id!r} has a {type(space).__name__} {name} space; only continuous "
-                f"(Box) {name} spaces are supported."
-            )
-        if len(space.shape) != 1:
-            raise EnvError(
-                f"{env_id!r} has a {name} Box of shape {space.shape}; only 1-D Boxes are "
-                "supported (flatten it with a wrapper first)."
-            )
-    action_space = env.action_space
-    assert isinstance(action_space, gym.spaces.Box)
-    if not (np.isfinite(action_space.low).all() and np.isfinite(action_space.high).all()):
-        raise EnvError(
-            f"{env_id!r} has unbounded actions (low {action_space.low}, high {action_space.high}); "
-            "the policy's actions in [-1, 1] are rescaled to the action box, which needs finite "
-            "bounds (wrap the env with gymnasium.wrappers.ClipAction over a finite Box, or "
-            "RescaleAction)."
-        )
+def _check_spaces(env_id: str, env: gym.Env) -> ActionSpec:
+    """The env's ActionSpec; EnvError (one line naming the space and what to do) unless the
+    observation space is a 1-D Box and the action space one a policy distribution drives
+    (action_spaces.action_spec)."""
+    space = env.observation_space
+    if not isinstance(space, gym.spaces.Box):
+        raise EnvError(f"{env_id!r} has a {type(space).__name__} observation space; only 1-D Box "
+                       "observations are supported (wrap the env with "
+                       "gymnasium.wrappers.FlattenObservation, which flattens Dict, Tuple and "
+                       "Discrete observations into one Box).")
+    if len(space.shape) != 1:
+        kind = "an image" if len(space.shape) == 3 else "a"
+        raise EnvError(f"{env_id!r} has {kind} observation Box of shape {space.shape}; only 1-D Box "
+                       "observations are supported (the policy is an MLP: wrap the env with "
+                       "gymnasium.wrappers.FlattenObservation, or use features instead of pixels).")
+    return action_spec(env_id, env.action_space)
 
 
 def env_info(env_id: str, max_episode_steps: int | None = None) -> EnvInfo:
-    """Read the dimensions, action bounds and time limit of env_id (creates and closes an env)."""
+    """Read the dimensions, action space and time limit of env_id (creates and closes an env)."""
     env = make_env(env_id, max_episode_steps)
     try:
-        obs_space, act_space = env.observation_space, env.action_space
-        assert isinstance(obs_space, gym.spaces.Box) and isinstance(act_space, gym.spaces.Box)
+        obs_space = env.observation_space
+        assert isinstance(obs_space, gym.spaces.Box)
+        actions = _check_spaces(env_id, env)
         return EnvInfo(
             obs_dim=int(obs_space.shape[0]),
-            act_dim=int(act_space.shape[0]),
-            action_low=np.asarray(act_space.low, dtype=np.float64).copy(),
-            action_high=np.asarray(act_space.high, dtype=np.float64).copy(),
+            act_dim=actions.columns,
+            action_low=actions.low,
+            action_high=actions.high,
             max_episode_steps=horizon(env_id, max_episode_steps),
+            actions=actions,
         )
     finally:
         env.close()
-
-
-def scale_action(action: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """Map a policy action in [-1, 1] to the env's box: clip, then low + (a + 1) (high - low) / 2.
-
-    rllab's convention: the Gaussian sample stays unclipped in the batch (its log-probability is
-    what the surrogate uses); only the control the env receives is clipped. Works row-wise on a
-    (..., act_dim) array.
-    """
-    clipped = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-    return low + (clipped + 1.0) * 0.5 * (high - low)
 
 
 def get_env_state(env: gym.Env) -> dict[str, Any]:

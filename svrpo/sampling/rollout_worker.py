@@ -18,8 +18,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from svrpo.sampling.action_spaces import action_spec
 from svrpo.sampling.batch_step import BatchStep, StepperName, make_stepper
-from svrpo.sampling.envs import get_env_state, make_env, scale_action, set_env_state
+from svrpo.sampling.envs import get_env_state, make_env, set_env_state
 from svrpo.sampling.gym_step import GymStep
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.vector_step import VectorStep
@@ -89,10 +90,7 @@ class RolloutWorker:
         self.max_episode_steps = max_episode_steps
         self.envs = [make_env(env_id, max_episode_steps) for _ in range(num_envs)]
         self._eval_envs: list[Any] = []
-        space = self.envs[0].action_space
-        assert isinstance(space, gym.spaces.Box)  # make_env checked it
-        self._low = np.asarray(space.low, dtype=np.float64)
-        self._high = np.asarray(space.high, dtype=np.float64)
+        self._actions = action_spec(env_id, self.envs[0].action_space)  # make_env checked it
         self._rng = np.random.default_rng(np.random.SeedSequence([seed, worker_index]))
         first = worker_index * num_envs
         # VectorStep and BatchStep bypass the (default) wrappers, GymStep steps through them; the
@@ -117,7 +115,7 @@ class RolloutWorker:
         counts = np.asarray(steps_per_env, dtype=np.int64)
         if counts.shape != (len(self.envs),) or (counts < 0).any():
             raise ValueError(f"need {len(self.envs)} non-negative step counts, got {counts}")
-        num_envs, obs_dim, act_dim = len(self.envs), self._obs.shape[1], len(self._low)
+        num_envs, obs_dim, act_dim = len(self.envs), self._obs.shape[1], self._actions.columns
         steps = int(counts.max(initial=0))
         always = int(counts.min()) if counts.size else 0  # lockstep steps in which every env steps
         # Step-major buffers (lockstep k, env i): each lockstep step writes whole rows with plain
@@ -141,7 +139,7 @@ class RolloutWorker:
             # Executed actions are rounded to float32 first, so the batch stores exactly what
             # the env received (before clipping) and a replay of the batch is bit-exact.
             sampled = snapshot.sample_action(current, self._rng).astype(np.float32)
-            controls = scale_action(sampled, self._low, self._high)
+            controls = self._actions.to_env(sampled)
             obs[k, at], actions[k, at], timesteps[k, at] = current, sampled, self._timestep[at]
             observations, step_rewards, step_terminated, env_truncated = self._stepper.step(
                 everyone_list if full else active.tolist(), controls
@@ -211,7 +209,7 @@ class RolloutWorker:
                     index = int(episode_indices[running[slot]])
                     obs[slot] = self._eval_envs[slot].reset(seed=seed + index)[0]
             slots = sorted(running)
-            controls = scale_action(snapshot.mean_action(obs[slots]), self._low, self._high)
+            controls = self._actions.to_env(snapshot.deterministic_action(obs[slots]))
             for control, slot in zip(controls, slots, strict=True):
                 obs[slot], reward, term, trunc, _ = self._eval_envs[slot].step(control)
                 returns[running[slot]] += float(reward)

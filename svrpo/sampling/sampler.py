@@ -45,7 +45,8 @@ class Batch:
     observations: torch.Tensor
     """(N, obs_dim) float32, raw env observations s_t."""
     actions: torch.Tensor
-    """(N, act_dim) float32, unclipped Gaussian samples a_t (clipped only when sent to the env)."""
+    """(N, act_dim) float32, the actions a_t drawn: unclipped Gaussian samples for a Box (clipped
+    only when sent to the env), category indices or bits otherwise (action_spaces.ActionSpec)."""
     rewards: torch.Tensor
     """(N,) float32, r_t."""
     next_observations: torch.Tensor

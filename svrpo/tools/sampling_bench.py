@@ -18,8 +18,8 @@ import mujoco.rollout
 import numpy as np
 import torch
 
-from svrpo.models.policy import GaussianMlpPolicy
-from svrpo.sampling.envs import make_env, scale_action
+from svrpo.models.policy import MlpPolicy
+from svrpo.sampling.envs import env_info, make_env, scale_action
 from svrpo.sampling.policy_snapshot import PolicySnapshot
 from svrpo.sampling.sampler import Batch, Sampler, steps_per_env
 
@@ -27,12 +27,10 @@ _FULL_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS  # what mujoco.rollout's initi
 
 
 def random_snapshot(env_id: str, seed: int = 0) -> PolicySnapshot:
-    """The initial policy of a run: (64, 64) tanh MLP, near-zero mean, std 1."""
-    env = make_env(env_id)
-    obs_dim, act_dim = env.observation_space.shape[0], env.action_space.shape[0]  # type: ignore[index]
-    env.close()
+    """The initial policy of a run: (64, 64) tanh MLP, near-zero mean (or logits), std 1."""
+    info = env_info(env_id)
     torch.manual_seed(seed)
-    return GaussianMlpPolicy(obs_dim, act_dim).snapshot()
+    return MlpPolicy(info.obs_dim, info.act_dim, actions=info.actions).snapshot()
 
 
 def replay_states(

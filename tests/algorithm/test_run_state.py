@@ -41,9 +41,11 @@ def _tiny_zoo(preset: str) -> Config:
 
 
 def _resume_cases() -> dict[str, Config]:
-    """Every preset, `svrpo` with every registered value of every part field (deduplicated), and
-    `trpo` and `svrpo` at the zoo scale."""
+    """Every preset on a Box task and on a Discrete one (CartPole: categorical draws, classic-control
+    state), `svrpo` with every registered value of every part field (deduplicated), and `trpo` and
+    `svrpo` at the zoo scale."""
     cases = {preset: _tiny(preset) for preset in PRESET_NAMES}
+    cases.update({f"{preset}@CartPole": _tiny(preset, env_id="CartPole-v1") for preset in PRESET_NAMES})
     cases.update({f"{preset}@zoo": _tiny_zoo(preset) for preset in ("trpo", "svrpo")})
     for field, registry in PART_REGISTRIES.items():
         for name in registry:

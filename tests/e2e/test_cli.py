@@ -56,7 +56,7 @@ def test_train_each_preset_writes_a_run(preset: str, tmp_path: Path) -> None:
     ("args", "message"),
     [
         (["--env", "Hoper-v5"], "Hopper-v5"),
-        (["--env", "CartPole-v1"], "Discrete"),
+        (["--env", "Blackjack-v1"], "Tuple observation space"),
         (["--max_kl", "0"], "max_kl"),
         (["--fisher_subsample", "1.5"], "fisher_subsample"),
         (["--minibatch_size", "999999"], "minibatch_size"),

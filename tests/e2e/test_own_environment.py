@@ -25,7 +25,7 @@ import pytest
 
 from svrpo.rundir.progress_log import WALL_CLOCK_COLUMNS
 from svrpo.sampling.batch_step import choose_stepper
-from svrpo.sampling.envs import make_env, scale_action
+from svrpo.sampling.envs import make_env
 from svrpo.sampling.restarting import RestartingSampler
 from svrpo.sampling.rollout_worker import RolloutWorker
 from svrpo.sampling.sampler import Sampler
@@ -115,14 +115,17 @@ def test_action_and_observation_wrappers_train(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("env_id", ["tests.own_envs:hopper_ends_after_7",
                                     "tests.own_envs:pendulum_rescaled_flattened",
-                                    "tests.own_envs:pendulum_reward_x100"])
+                                    "tests.own_envs:pendulum_reward_x100",
+                                    "tests.own_envs:match_discrete",
+                                    "tests.own_envs:match_multi_discrete",
+                                    "tests.own_envs:match_multi_binary"])
 def test_batches_replay_bit_exactly_through_env_step(env_id: str) -> None:
     """A worker's batch is what the wrapped env.step returns for the stored actions: the same
     observations, rewards, terminations and truncations, replayed in a fresh env."""
     worker = RolloutWorker(env_id, 2, seed=3, max_episode_steps=20, first_cuts=[5, 20])
     snapshot = random_snapshot(env_id)
     chunk = worker.sample(snapshot, [40, 40])
-    low, high = worker._low, worker._high
+    actions = worker._actions  # what the env receives for a stored action (a Box's rescaling)
     worker.close()
     row = 0
     for index, first_cut in enumerate([5, 20]):
@@ -132,7 +135,7 @@ def test_batches_replay_bit_exactly_through_env_step(env_id: str) -> None:
         for _ in range(40):
             assert np.array_equal(chunk.observations[row], np.float32(observation))
             observation, reward, terminated, truncated, _ = replay.step(
-                scale_action(chunk.actions[row], low, high))
+                actions.to_env(chunk.actions[row:row + 1])[0])
             assert chunk.rewards[row] == np.float32(reward)
             assert np.array_equal(chunk.next_observations[row], np.float32(observation))
             assert chunk.terminated[row] == terminated

@@ -45,6 +45,13 @@ def _image_observation_env(**kwargs: Any) -> gym.Env:
 
 gym.register("SvrpoTestDictObs-v0", entry_point=_dict_observation_env)
 gym.register("SvrpoTestImageObs-v0", entry_point=_image_observation_env)
+
+
+def _tuple_action_env(**kwargs: Any) -> gym.Env:
+    return _SpacesEnv(_BOX, gym.spaces.Tuple((gym.spaces.Discrete(2), gym.spaces.Discrete(3))))
+
+
+gym.register("SvrpoTestTupleAction-v0", entry_point=_tuple_action_env)
 # A MuJoCo task registered with no time limit of its own.
 gym.register("SvrpoTestNoLimitSwimmer-v0", entry_point="gymnasium.envs.mujoco.swimmer_v5:SwimmerEnv",
              max_episode_steps=None)
@@ -62,14 +69,23 @@ def test_unknown_id_without_close_match_has_no_suggestion() -> None:
     assert "Did you mean" not in str(error.value)
 
 
-def test_discrete_action_space_is_rejected() -> None:
-    with pytest.raises(EnvError, match=r"Discrete action space"):
-        make_env("CartPole-v1")
+def test_discrete_action_spaces_are_read() -> None:
+    """CartPole's Discrete(2): one stored column, two logits; no box bounds."""
+    info = env_info("CartPole-v1")
+    assert (info.obs_dim, info.act_dim, info.max_episode_steps) == (4, 1, 500)
+    assert (info.actions.kind, info.actions.nvec, info.actions.head_size) == ("discrete", (2,), 2)
+    assert info.action_low.size == info.action_high.size == 0
 
 
 def test_non_box_observation_space_is_rejected() -> None:
-    with pytest.raises(EnvError, match=r"Dict observation space"):
+    with pytest.raises(EnvError, match=r"Dict observation space.*FlattenObservation"):
         make_env("SvrpoTestDictObs-v0")
+
+
+def test_tuple_action_space_is_rejected() -> None:
+    with pytest.raises(EnvError, match=r"Tuple action space; supported action spaces are Box, Discrete, "
+                                       r"MultiDiscrete and MultiBinary"):
+        make_env("SvrpoTestTupleAction-v0")
 
 
 def test_multidimensional_box_is_rejected() -> None:

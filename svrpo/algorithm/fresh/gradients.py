@@ -22,7 +22,7 @@ import torch
 
 from svrpo.algorithm.objectives import SurrogateBatch
 from svrpo.models.parameters import flat_gradient, flat_parameters, set_flat_parameters
-from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.models.policy import MlpPolicy
 
 
 def importance_weights(log_prob: torch.Tensor, behaviour_log_prob: torch.Tensor,
@@ -33,7 +33,7 @@ def importance_weights(log_prob: torch.Tensor, behaviour_log_prob: torch.Tensor,
     return weights if clip is None else torch.clamp(weights, max=clip)
 
 
-def weighted_score_gradient(policy: GaussianMlpPolicy, batch: SurrogateBatch,
+def weighted_score_gradient(policy: MlpPolicy, batch: SurrogateBatch,
                             clip: float | None) -> torch.Tensor:
     """mean_t omega_t A_t grad log pi_w(a_t|s_t) at the policy's parameters w, omega_t the
     (truncated) weight of w against the behaviour policy: the importance-sampled estimate of
@@ -43,7 +43,7 @@ def weighted_score_gradient(policy: GaussianMlpPolicy, batch: SurrogateBatch,
     return flat_gradient((weights * batch.advantages * log_prob).mean(), policy)
 
 
-def score_gradient(policy: GaussianMlpPolicy, batch: SurrogateBatch) -> torch.Tensor:
+def score_gradient(policy: MlpPolicy, batch: SurrogateBatch) -> torch.Tensor:
     """mean_t A_t grad log pi_w(a_t|s_t) at the policy's parameters: grad L_B(w_j) on steps
     drawn with w_j itself (every weight is 1)."""
     log_prob = policy.log_prob(batch.observations, batch.actions)
@@ -55,8 +55,8 @@ class FreshGradients:
     at the live iterate w_j (`at_current`, weights 1) and importance-weighted at any other flat
     parameter vector (`at`: w~ for SVRPG, w_{j-1} for SRVR-PG and STORM-PG)."""
 
-    def __init__(self, policy: GaussianMlpPolicy, batch: SurrogateBatch, clip: float | None,
-                 scratch: GaussianMlpPolicy | None = None) -> None:
+    def __init__(self, policy: MlpPolicy, batch: SurrogateBatch, clip: float | None,
+                 scratch: MlpPolicy | None = None) -> None:
         self.policy = policy
         """The live policy (its parameters are w_j, the behaviour policy of `batch`)."""
         self.batch = batch

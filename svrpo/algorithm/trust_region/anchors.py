@@ -16,16 +16,17 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 import torch
 
 from svrpo.algorithm.lifecycle import Part
-from svrpo.algorithm.objectives import SurrogateBatch
+from svrpo.algorithm.objectives import SurrogateBatch, per_row
 from svrpo.config import Config
-from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.models.policy import MlpPolicy
 
 if TYPE_CHECKING:
     from svrpo.algorithm.gradients import BatchGradients
     from svrpo.algorithm.streams import RandomStreams
 
 Gaussian = tuple[torch.Tensor, torch.Tensor]
-"""(mean, log_std) per batch row, both (N, act_dim)."""
+"""(head, log_std) per batch row, (N, head_size) and (N, act_dim) or (N, 0): a Gaussian's means and
+log-std, or the logits of the discrete distributions (the name predates them)."""
 AnchorCentre = Literal["sampling", "iterate"]
 
 
@@ -67,7 +68,7 @@ class KlAnchor(Protocol):
     """Gives the trust region of the step about to leave the policy's current w_j; a part with
     the svrpo.algorithm.lifecycle.Part methods (start, state_dict, load_state_dict)."""
 
-    def bound(self, batch: SurrogateBatch, policy: GaussianMlpPolicy) -> KlBound:
+    def bound(self, batch: SurrogateBatch, policy: MlpPolicy) -> KlBound:
         """The anchor's (mean, log_std), both (N, act_dim), and the radius for this step."""
         ...
 
@@ -89,8 +90,8 @@ class SamplingAnchor(Part):
     max_kl: float
     """delta."""
 
-    def bound(self, batch: SurrogateBatch, policy: GaussianMlpPolicy) -> KlBound:
-        return KlBound((batch.old_mean, batch.old_log_std.expand_as(batch.old_mean)), self.max_kl)
+    def bound(self, batch: SurrogateBatch, policy: MlpPolicy) -> KlBound:
+        return KlBound((batch.old_mean, per_row(batch.old_log_std, batch.old_mean)), self.max_kl)
 
 
 @dataclass(frozen=True)
@@ -100,9 +101,9 @@ class IterateAnchor(Part):
     max_kl: float
     """delta, per step."""
 
-    def bound(self, batch: SurrogateBatch, policy: GaussianMlpPolicy) -> KlBound:
+    def bound(self, batch: SurrogateBatch, policy: MlpPolicy) -> KlBound:
         mean = policy.activations(batch.observations)[-1]
-        return KlBound((mean, policy.log_std.detach().clone().expand_as(mean)), self.max_kl,
+        return KlBound((mean, per_row(policy.log_std.detach().clone(), mean)), self.max_kl,
                        anchor_centre="iterate")
 
 
@@ -147,12 +148,12 @@ class BudgetedAnchor(Part):
     def after_step(self, accepted: bool) -> None:
         self._moved = self._moved or accepted  # a rejected search restores w exactly
 
-    def bound(self, batch: SurrogateBatch, policy: GaussianMlpPolicy) -> KlBound:
-        sampling = (batch.old_mean, batch.old_log_std.expand_as(batch.old_mean))
+    def bound(self, batch: SurrogateBatch, policy: MlpPolicy) -> KlBound:
+        sampling = (batch.old_mean, per_row(batch.old_log_std, batch.old_mean))
         if not self._moved:  # w_j = w~: both balls share their centre
             return KlBound(sampling, min(self.step_radius, self.budget))
         mean = policy.activations(batch.observations)[-1]
-        iterate = (mean, policy.log_std.detach().clone().expand_as(mean))
+        iterate = (mean, per_row(policy.log_std.detach().clone(), mean))
         return KlBound(iterate, self.step_radius, also_within=((sampling, self.budget),),
                        anchor_centre="iterate")
 

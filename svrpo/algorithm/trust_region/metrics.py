@@ -10,12 +10,12 @@ import torch
 from torch import nn
 
 from svrpo.algorithm.lifecycle import Part
-from svrpo.algorithm.objectives import mean_kl_from
+from svrpo.algorithm.objectives import mean_kl_from, per_row
 from svrpo.algorithm.streams import RandomStreams
 from svrpo.algorithm.trust_region.conjugate_gradient import CgResult, conjugate_gradient
 from svrpo.config import Config
 from svrpo.models.parameters import flat_gradient
-from svrpo.models.policy import GaussianMlpPolicy
+from svrpo.models.policy import MlpPolicy
 
 if TYPE_CHECKING:
     from svrpo.algorithm.gradients import BatchGradients
@@ -26,7 +26,7 @@ Direction = tuple[torch.Tensor, CgResult | None]
 
 
 def fisher_vector_product(
-    policy: GaussianMlpPolicy, observations: torch.Tensor, damping: float
+    policy: MlpPolicy, observations: torch.Tensor, damping: float
 ) -> MatVec:
     """v -> (F + damping I) v, F the Fisher of pi_w on `observations` at the current w.
 
@@ -34,9 +34,11 @@ def fisher_vector_product(
     does not change it.
 
     F is the Hessian at w' = w of mean_s KL(pi_w(.|s) detached || pi_w'(.|s)), which equals
-    E_s E_a[grad log pi grad log pi^T]. For the Gaussian policy it has the closed form
-        F = (1/B) sum_s J_s^T diag(1/sigma^2) J_s  (+ 2 I on the log-std block, no cross terms),
-    J_s the Jacobian of the mean network at state s. The product is computed as J^T (P (J v)):
+    E_s E_a[grad log pi grad log pi^T]. It has the closed form
+        F = (1/B) sum_s J_s^T M_s J_s  (+ 2 I on a Gaussian's log-std block, no cross terms),
+    J_s the Jacobian of the network's head at state s and M_s the Hessian of the KL in the head
+    (policy.distribution.head_fisher): diag(1/sigma^2) for the Gaussian, diag(p) - p p^T per
+    categorical, diag(p (1 - p)) for Bernoullis. The product is computed as J^T (M (J v)):
     a forward-mode pass then a backward pass through the MLP, both reusing the activations
     computed once here, so a CG iteration costs four small matrix products per layer instead
     of a double-backward pass through the KL graph (results/update-cost/update_pieces.py times both).
@@ -50,7 +52,7 @@ def fisher_vector_product(
     inputs = [observations, *activations[:-1]]  # a_k, the input of linear layer k
     with torch.no_grad():
         slopes = [1.0 - a * a for a in activations[:-1]]  # tanh'(z_k) = 1 - a_{k+1}^2
-        precision = torch.exp(-2.0 * policy.log_std) / count  # diag(1/sigma^2), mean over states
+    head_fisher = policy.distribution.head_fisher(activations[-1], policy.log_std, count)  # M / B
     # Copies, not views: the activations above belong to this w, so the product must keep using
     # this w's weights after the line search moves the live parameters in place.
     weights = [layer.weight.detach().clone() for layer in layers]
@@ -71,44 +73,48 @@ def fisher_vector_product(
             for k in range(1, len(weights)):
                 tangent = torch.addmm(d_biases[k], slopes[k - 1] * tangent, weights[k].t())
                 tangent.addmm_(inputs[k], d_weights[k].t())
-            # J^T u with u = P J v, layer by layer from the head down.
-            upstream = tangent * precision
+            # J^T u with u = M J v, layer by layer from the head down.
+            upstream = head_fisher(tangent)
             blocks: list[torch.Tensor] = list(pieces)  # every slot is overwritten below
             for k in range(len(weights) - 1, -1, -1):
                 blocks[bias_slots[k]] = upstream.sum(0)
                 blocks[weight_slots[k]] = (upstream.t() @ inputs[k]).reshape(-1)
                 if k > 0:
                     upstream = (upstream @ weights[k]) * slopes[k - 1]
-            blocks[log_std_slot] = 2.0 * pieces[log_std_slot]  # d^2 KL / d log_std^2 = 2 per dim
+            blocks[log_std_slot] = 2.0 * pieces[log_std_slot]  # d^2 KL / d log_std^2 = 2 (or empty)
             return torch.cat(blocks) + damping * vector
 
     return product
 
 
 def autograd_fisher_vector_product(
-    policy: GaussianMlpPolicy, observations: torch.Tensor, damping: float
+    policy: MlpPolicy, observations: torch.Tensor, damping: float
 ) -> MatVec:
     """The same product by double backpropagation through the mean KL (any policy network).
 
     grad-KL is built once and every product differentiates it again (one backward pass per CG
     iteration, no rebuilt graph). Used when the network is not a plain tanh MLP, and in tests
-    as the reference for the closed form.
+    as the reference for the closed form (any distribution: it differentiates its KL).
     """
     with torch.no_grad():
         anchor_mean, anchor_log_std = policy(observations)
-        anchor_log_std = anchor_log_std.expand_as(anchor_mean)
+        anchor_log_std = per_row(anchor_log_std, anchor_mean)
     kl = mean_kl_from(anchor_mean, anchor_log_std, policy, observations)
     grad_kl = flat_gradient(kl, policy, create_graph=True)
     params = list(policy.parameters())
 
     def product(vector: torch.Tensor) -> torch.Tensor:
-        grads = torch.autograd.grad(grad_kl @ vector, params, retain_graph=True)
-        return torch.cat([g.reshape(-1) for g in grads]) + damping * vector
+        # allow_unused: a parameter grad-KL does not depend on (the discrete policies' empty
+        # log_std) has a zero block.
+        grads = torch.autograd.grad(grad_kl @ vector, params, retain_graph=True, allow_unused=True)
+        per_parameter = [(torch.zeros_like(p) if g is None else g).reshape(-1)
+                         for g, p in zip(grads, params, strict=True)]
+        return torch.cat(per_parameter) + damping * vector
 
     return product
 
 
-def _linear_layers(policy: GaussianMlpPolicy) -> list[nn.Linear] | None:
+def _linear_layers(policy: MlpPolicy) -> list[nn.Linear] | None:
     """The mean network's Linear layers if it is Linear (Tanh Linear)* with biases and the
     policy has no parameters besides theirs and log_std (the closed form's assumptions)."""
     modules = list(policy.mean_net)
