@@ -68,7 +68,7 @@ def _tune_study(spec: TuneSpec, args: argparse.Namespace, backend: Backend, root
 
     if args.storage is None:
         make_directory()  # the default SQLite file lives in it
-    study = stored.open_study(spec, storage)
+    study = stored.open_study(spec, storage, root, say=lambda text: print(text, file=sys.stderr))
     make_directory()
     signal.signal(signal.SIGTERM, raise_keyboard_interrupt)  # stop like Ctrl-C: runs checkpoint
     print(f"study {spec.name} in {storage}: {target} trials of {len(spec.tasks)} tasks x "

@@ -50,6 +50,10 @@ TENSORBOARD_NAMESPACES: dict[str, str] = {column: namespace for namespace, colum
 scalars (rollout/, train/, time/, eval/); env_steps is the step of every scalar, not a scalar."""
 
 
+PROGRESS_COLUMNS: tuple[str, ...] = ("env_steps", *TENSORBOARD_NAMESPACES)
+"""Every column of progress.csv (env_steps and the namespaced ones), in no particular order."""
+
+
 def tensorboard_tag(column: str) -> str:
     """NAMESPACE/column for TensorBoard; KeyError for a column with no namespace yet."""
     if column not in TENSORBOARD_NAMESPACES:
