@@ -168,11 +168,9 @@ class RunLogger:
                 self._writer.add_scalar(tensorboard_tag(key), value, step)
         self._writer.flush()
         self._bar.update(step - self._bar.n)
-        postfix = {
-            "return": _short(row.get("average_return")),
-            "steps/s": _short(row.get("steps_per_second")),
-        }
-        self._bar.set_postfix(postfix, refresh=True)
+        # One rate: tqdm's environment steps per second of the whole iteration (sampling and
+        # update); the sampling-only rate is progress.csv's steps_per_second.
+        self._bar.set_postfix({"return": _short(row.get("average_return"))}, refresh=True)
 
     def message(self, text: str) -> None:
         """A line printed above the progress bar."""
