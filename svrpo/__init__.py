@@ -86,7 +86,7 @@ _RENAMED: dict[str, str] = {
         "anchors", "conjugate_gradient", "line_search", "metrics")},
     "svrpo.tools.allocator": "svrpo.algorithm.allocator",
 }
-"""Old module name -> the module it became (git log --stat -- 'svrpo/core/*')."""
+"""Old module name -> the module it became (git log --stat -- the old core folder)."""
 
 
 class _RenamedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
