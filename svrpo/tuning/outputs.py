@@ -126,6 +126,9 @@ def write_plots(study: optuna.Study, directory: Path) -> dict[str, str]:
         figure = (axes.flat[0] if hasattr(axes, "flat") else axes).figure
         if not figure.axes or not any(ax.has_data() for ax in figure.axes):
             skipped[name] = "not enough complete trials"
+            plt.close(figure)
+            (directory / name).unlink(missing_ok=True)  # an earlier, now stale, drawing
+            continue
         figure.set_size_inches(9, 5.5)
         figure.tight_layout()
         _save_png(figure, directory / name)

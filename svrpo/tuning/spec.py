@@ -199,17 +199,12 @@ EPISODE_METRICS = ("average_return", "episode_length", "episodes")
 
 def _extreme_configs(spec: TuneSpec, base: Config) -> list[Config]:
     """The trial configs with every numeric searched field at its low end, then at its high end
-    (categoricals at the base's value; a fraction of its base field's value there); the valid
-    ones only."""
+    (categoricals at the base's value; a fraction of its base field's value there), not
+    validated: only their iteration's size and layout are read (a trial drawn near an end that
+    cannot run fails by itself)."""
     numeric = tuple(param for param in spec.space if param.kind != "categorical")
-    configs = []
-    for end in ("low", "high"):
-        params = {param.name: getattr(param, end) for param in numeric}
-        try:
-            configs.append(base.replace(**resolve(numeric, params, base)))
-        except ConfigError:
-            continue
-    return configs
+    ends = ({param.name: getattr(param, end) for param in numeric} for end in ("low", "high"))
+    return [dataclasses.replace(base, **resolve(numeric, params, base)) for params in ends]
 
 
 def _check_ranges(spec: TuneSpec, base: Config, fail: Any) -> None:

@@ -78,7 +78,9 @@ def open_study(spec: TuneSpec, storage_url: str, root: Path | None = None,
     deleted from the storage with its trial directories under `root`, and `say` tells it."""
     import optuna
 
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    # Errors only: svrpo says each trial's outcome itself ("trial 3: failed: ..."); Optuna's own
+    # warnings repeated it as "[W ...]" lines (a failed trial, a plot of no complete trial).
+    optuna.logging.set_verbosity(optuna.logging.ERROR)
     storage = open_storage(storage_url)
 
     def create() -> optuna.Study:

@@ -178,3 +178,27 @@ def test_best_yaml_records_the_study_budget_and_the_api_trains_it(tmp_path: Path
     config = Config.from_json((run_dir / "config.json").read_text())
     assert config.total_steps == 1200
     assert int(progress_rows(run_dir)[-1]["env_steps"]) <= 1200
+
+
+def test_a_study_whose_every_trial_failed_says_so_and_writes_no_empty_plot(tmp_path: Path) -> None:
+    """Issue 57 defect 2's other symptoms, for trials that fail for a reason no load check can
+    see (m drawn in [1000, 2000] above every N drawn in [300, 900]): the closing line named a
+    best.yaml never written, rc 0, report.md said "not drawn" beside empty PNGs, and Optuna
+    printed [W ...] warnings."""
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY.replace("preset: trpo", "preset: svrpo").replace("trials: 3", "trials: 2")
+                    .replace("minibatch_size: {type: fraction, of: batch_size, low: 0.1, high: 0.5}",
+                             "minibatch_size: {type: int, low: 1000, high: 2000}"))
+    root = tmp_path / "tune"
+    result = _tune(spec, root)
+    assert result.returncode == 1, result.stderr
+    assert "2 of 2 trials finished" in result.stdout and "best.yaml" not in result.stdout
+    assert "no trial completed, so there is no best.yaml" in result.stderr
+    assert "[W " not in result.stderr
+    study = root / "tiny"
+    assert not (study / "best.yaml").exists()
+    report = (study / "report.md").read_text()
+    for name in ("history.png", "importances.png", "parallel_coordinate.png"):
+        assert f"- {name}: not drawn" in report
+        assert not (study / name).exists(), name
+    assert (study / "trials.csv").read_text().count("FAIL") == 2
