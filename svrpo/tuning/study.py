@@ -236,7 +236,7 @@ def _no_score(spec: TuneSpec, work: TrialWork, budget: int) -> str:
     """Why a trial has no score at the end of its budget: no run logged an iteration, or no
     logged row has a value of the metric (no training episode ended: a task whose episodes are
     longer than the budget allows)."""
-    from svrpo.tuning.stages import logged_steps
+    from svrpo.experiments.budget import logged_steps
 
     logged = [logged_steps(work.run_dir(task, seed) / "progress.csv")[0]
               for task in spec.tasks for seed in spec.seeds]
