@@ -202,3 +202,21 @@ def test_a_study_whose_every_trial_failed_says_so_and_writes_no_empty_plot(tmp_p
         assert f"- {name}: not drawn" in report
         assert not (study / name).exists(), name
     assert (study / "trials.csv").read_text().count("FAIL") == 2
+
+
+def test_a_trial_without_a_score_says_whether_no_iteration_or_no_episode_ended(tmp_path: Path) -> None:
+    """Issue 57 defect 3: "one iteration may be larger than the budget" was said of runs that
+    had logged iterations in which no episode ended (a task not checked at load: the user's)."""
+    from svrpo.tuning.stages import TrialWork
+    from svrpo.tuning.study import _no_score
+
+    path = tmp_path / "tiny.yaml"
+    path.write_text(TINY)
+    spec = load_tune_spec(path)
+    work = TrialWork(None, 0, tmp_path / "trial0000")  # type: ignore[arg-type]
+    assert "logged no iteration" in _no_score(spec, work, 2000)
+    run_dir = work.run_dir("InvertedPendulum-v5", 0)
+    run_dir.mkdir(parents=True)
+    (run_dir / "progress.csv").write_text("iteration,env_steps,average_return\n1,600,\n2,1200,\n")
+    said = _no_score(spec, work, 2000)
+    assert "the runs logged iterations but no row has one" in said and "no training episode ended" in said
