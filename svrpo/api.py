@@ -9,7 +9,7 @@ import signal
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from svrpo.config import Config
 
@@ -17,7 +17,8 @@ if TYPE_CHECKING:
     from svrpo.algorithm.estimators import GradientEstimator
 
 
-def train(config: Config | str | os.PathLike[str], run_dir: str | os.PathLike[str], resume: bool = False,
+def train(config: Config | str | os.PathLike[str], run_dir: str | os.PathLike[str],
+          resume: bool | Literal["auto"] = False,
           show_progress: bool = True, env: Callable[[], Any] | None = None,
           estimator: GradientEstimator | None = None, overwrite: bool = False,
           callback: Callable[[dict[str, Any]], Any] | None = None,
@@ -29,6 +30,9 @@ def train(config: Config | str | os.PathLike[str], run_dir: str | os.PathLike[st
     run_dir must be new or empty: one that already holds a run is refused (RunDirectoryError,
     nothing touched) unless resume=True, which continues it from its newest readable checkpoint,
     or overwrite=True, which replaces it (the files a run writes; yours beside them stay).
+    resume="auto" (a preemptible job that runs the same script again): resume run_dir if it
+    holds a run of this config (extended if total_steps is larger), else start it; a run of
+    another config there is refused (svrpo.rundir.run_files.resume_if_exists).
     Every check `svrpo train` makes runs before anything is written (the env id exists, with
     close matches if not; the config and estimator are valid).
     Ctrl-C or SIGTERM: the last completed iteration is checkpointed, then KeyboardInterrupt with
@@ -67,6 +71,10 @@ def train(config: Config | str | os.PathLike[str], run_dir: str | os.PathLike[st
         config = config.replace(env_id=env_id_of(env))
     env_info(config.env_id, config.max_episode_steps)  # EnvError (close matches) before any file
     path = Path(run_dir)
+    if resume == "auto":
+        from svrpo.rundir.run_files import resume_if_exists
+
+        resume = resume_if_exists(path, config)
     origin = config_origin(config)
     extra = {} if estimator is None else {"estimator_object": estimator_class_name(estimator)}
     # The preset name is the label `svrpo plot` groups runs by: the estimator's class for a

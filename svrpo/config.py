@@ -304,6 +304,15 @@ def coerce_field(name: str, value: Any) -> Any:
 
 def validate(config: Config) -> Config:
     """Check ranges and cross-field constraints; return the config or raise ConfigError."""
+    failed = config_problems(config)
+    if failed:
+        raise ConfigError("; ".join(failed))
+    return config
+
+
+def config_problems(config: Config) -> list[str]:
+    """What validate() refuses in `config`, one message per failed check (a check on one field
+    starts with that field's name and ends with its value)."""
     c = config
     checks: list[tuple[bool, str]] = [
         (c.seed >= 0, "seed must be >= 0"),
@@ -354,12 +363,9 @@ def validate(config: Config) -> Config:
          "baseline_lr > 0, baseline_epochs >= 1, baseline_minibatch_size >= 1"),
     ]
     # A check on one field names its value too (the user sees what they gave).
-    failed = [message + (f" (got {message.split()[0]}={getattr(c, message.split()[0])!r})"
-                         if message.split()[0] in _HINTS else "")
-              for ok, message in checks if not ok]
-    if failed:
-        raise ConfigError("; ".join(failed))
-    return c
+    return [message + (f" (got {message.split()[0]}={getattr(c, message.split()[0])!r})"
+                       if message.split()[0] in _HINTS else "")
+            for ok, message in checks if not ok]
 
 
 def differing_fields(a: Config, b: Config) -> dict[str, tuple[Any, Any]]:

@@ -7,7 +7,13 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.wrappers import FlattenObservation, RescaleAction, ReshapeObservation, TransformReward
+from gymnasium.wrappers import (
+    FlattenObservation,
+    FrameStackObservation,
+    RescaleAction,
+    ReshapeObservation,
+    TransformReward,
+)
 
 
 class EndAfter(gym.Wrapper):
@@ -46,6 +52,12 @@ def hopper_ends_after_7() -> gym.Env:
 def pendulum_rescaled_flattened() -> gym.Env:
     """Pendulum-v1 with actions in [-0.5, 0.5] and (3, 1) observations flattened back to (3,)."""
     return FlattenObservation(ReshapeObservation(RescaleAction(gym.make("Pendulum-v1"), -0.5, 0.5), (3, 1)))
+
+
+def pendulum_frame_stack() -> gym.Env:
+    """InvertedPendulum's last 3 observations, flattened: the frames live in the wrapper's
+    `obs_queue` deque, state a checkpoint cannot hold (the base env holds none of it)."""
+    return FlattenObservation(FrameStackObservation(gym.make("InvertedPendulum-v5"), 3))
 
 
 class DriftEnv(gym.Env):

@@ -310,7 +310,7 @@ def test_every_entry_point_without_a_scale_takes_the_presets_default_scale(
         assert loaded.scale == scale and loaded.config("Hopper-v5") == expected.replace(max_kl=0.03)
 
         spec = tmp_path / f"tune-{preset}.yaml"
-        spec.write_text(f"preset: {preset}\ntasks: {{Hopper-v5: 1000}}\nsteps: 4096\ntrials: 1\n"
+        spec.write_text(f"preset: {preset}\ntasks: {{Hopper-v5: 1000}}\nsteps: 10000\ntrials: 1\n"
                         "space: {max_kl: {type: log_float, low: 0.001, high: 0.1}}\n")
         assert load_tune_spec(spec).scale == scale
 

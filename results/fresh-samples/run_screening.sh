@@ -14,9 +14,9 @@ else
   SPECS=(svrpg-b256 srvrpg-b256 stormpg-b256 svrpg-sgd-b256 svrpg-b512 srvrpg-b512 stormpg-b512 svrpg-sgd-b512)
 fi
 DIR=$(dirname "$0")/screening
-for seeds in 1 2 3; do  # --seeds N runs seeds 0..N-1: each pass adds seed N-1 of every configuration
+for seeds in 1 2 3; do  # --seeds 0-(N-1) runs seeds 0..N-1: each pass adds seed N-1 of every configuration
   for spec in "${SPECS[@]}"; do
-    svrpo sweep "$DIR/$spec.yaml" --seeds "$seeds" --root "$ROOT" --jobs "${JOBS:-2}" \
+    svrpo sweep "$DIR/$spec.yaml" --seeds "0-$((seeds - 1))" --root "$ROOT" --jobs "${JOBS:-2}" \
       --num_workers 1 --envs_per_worker 16 --torch_threads 1
   done
 done

@@ -67,6 +67,12 @@ class LoadedPolicy:
         control = self.actions.to_env(raw)
         return control[0] if np.ndim(observation) == 1 else control
 
+    def __repr__(self) -> str:
+        """One line: what the policy is and where it came from (not its weights and config)."""
+        return (f"LoadedPolicy(env_id={self.config.env_id!r}, iteration={self.iteration}, "
+                f"env_steps={self.env_steps}, hidden_sizes={self.config.hidden_sizes}, "
+                f"act_dim={len(self.action_low)}, checkpoint={str(self.checkpoint)!r})")
+
 
 @dataclass(frozen=True)
 class Evaluation:
@@ -107,8 +113,8 @@ def load_policy(path: str | os.PathLike[str], allow_import: Collection[str] = ()
     """Rebuild the policy and normaliser of a run directory's latest checkpoint (or a .pt file).
 
     The checkpoint is read with weights_only=True (svrpo.rundir.checkpoint.load): no pickled code runs.
-    A task id of the form "module:Env" in it is refused (EnvError) unless the module is in
-    `allow_import`: creating the env would import the module, running its code.
+    A task id of the form "module:Env" in it is refused (ImportNotAllowedError, an EnvError) unless
+    the module is in `allow_import`: creating the env would import the module, running its code.
     """
     import torch
 
@@ -127,7 +133,11 @@ def load_policy(path: str | os.PathLike[str], allow_import: Collection[str] = ()
         state = checkpoint.load(source)
     try:
         config = Config.from_json(state["config"])
-        check_import_allowed(config.env_id, allow_import, source)
+    except (KeyError, ValueError, TypeError) as error:
+        raise checkpoint.CheckpointError(f"{source} does not hold a usable policy: {error}") from None
+    # Outside the try: a module not allowed is the caller's choice, not a damaged checkpoint.
+    check_import_allowed(config.env_id, allow_import, source, python=True)
+    try:
         info = env_info(config.env_id, config.max_episode_steps)
         policy = MlpPolicy(info.obs_dim, info.act_dim, config.hidden_sizes, config.init_log_std,
                            actions=info.actions)

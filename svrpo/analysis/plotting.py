@@ -26,9 +26,26 @@ from svrpo.rundir.progress_log import CPU_SECONDS, cpu_seconds, read_progress
 _COLOR_CYCLE = ("tab:blue", "tab:red", "tab:orange", "tab:green", "tab:purple", "tab:brown",
                 "tab:olive", "tab:cyan", "tab:pink", "tab:gray", "black", "gold", "navy", "magenta",
                 "teal", "lime")
+_OTHER_COLORS = ("darkgoldenrod", "indigo", "crimson", "darkkhaki", "slateblue", "sienna", "darkcyan",
+                 "orchid")
+"""Colours of labels that are no preset (a user's estimator), after the cycle's unused ones."""
 PRESET_COLORS = dict(zip(PRESET_NAMES, itertools.cycle(_COLOR_CYCLE), strict=False))
 """Each preset's colour in every figure, from the preset table's order (trpo blue, svrpo red, ...):
 a new preset gets the next colour of the cycle without an edit here."""
+
+
+
+def label_colors(labels: Sequence[str]) -> dict[str, str]:
+    """A colour per line label: a preset's own (PRESET_COLORS); any other label (a user's
+    estimator, e.g. "custom-svrg") the next colour of the cycle that no preset among `labels`
+    uses (any preset, else any preset of this figure), so it is not taken for trpo's blue."""
+    colors = {label: PRESET_COLORS[label] for label in labels if label in PRESET_COLORS}
+    unused = [color for color in (*_COLOR_CYCLE, *_OTHER_COLORS) if color not in PRESET_COLORS.values()]
+    free = unused or [color for color in _COLOR_CYCLE if color not in colors.values()] or ["black"]
+    others = sorted({label for label in labels if label not in PRESET_COLORS})
+    colors.update(zip(others, itertools.cycle(free), strict=False))
+    return colors
+
 
 Groups = Mapping[str, Mapping[str, Sequence["RunCurve"]]]
 """panel title (task) -> line label (preset) -> one curve per seed."""
@@ -154,6 +171,7 @@ def plot_panels(
     from matplotlib.ticker import EngFormatter
 
     panels = list(groups)
+    colors = label_colors([label for panel in panels for label in groups[panel]])
     columns = max(1, min(3, len(panels)))
     rows = max(1, math.ceil(len(panels) / columns))
     figure, axes = plt.subplots(rows, columns, figsize=(5 * columns, 3.8 * rows), squeeze=False)
@@ -172,7 +190,7 @@ def plot_panels(
             shown = np.isfinite(mean)
             seeds = f"{len(runs)} seed{'s' if len(runs) > 1 else ''}"
             (line,) = axis.plot(x[shown], mean[shown], label=f"{label} ({seeds})",
-                                color=PRESET_COLORS.get(label))
+                                color=colors[label])
             if len(runs) > 1:
                 axis.fill_between(x[shown], low[shown], high[shown], color=line.get_color(), alpha=0.2,
                                   linewidth=0)

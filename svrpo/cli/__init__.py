@@ -9,6 +9,7 @@ Bad input: one line on stderr, exit code 2.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from svrpo.arguments import CommandLineError, OneLineParser
@@ -31,6 +32,8 @@ def make_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="svrpo", description="SVRPO and TRPO on Gymnasium MuJoCo tasks."
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}",
+                        help="print svrpo's version and exit")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     train = commands.add_parser(
         "train",
@@ -56,13 +59,16 @@ def make_parser() -> argparse.ArgumentParser:
     train.add_argument("--out", default=None, help="run directory (default runs/ENV/PRESET/seedK)")
     train.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue a run")
     train.add_argument("--overwrite", action="store_true", help="replace an existing run directory")
+    train.add_argument("--auto-resume", action="store_true",
+                       help="resume the run in --out if it holds one of this config, else start it: "
+                       "a preemptible job runs the same command again (API: resume=\"auto\")")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.add_argument("--allow-import", action="append", default=[], metavar="MODULE",
                        help="with --resume: allow a config.json naming a 'MODULE:Env' task to import "
                             "MODULE (runs its code)")
     train.add_argument("--restart-episodes", action="store_true",
-                       help="with --resume: accept that every episode restarts when the env keeps "
-                            "state a checkpoint cannot hold (docs/own-environment.md)")
+                       help="with --resume (or --auto-resume): accept that every episode restarts when "
+                            "the env keeps state a checkpoint cannot hold (docs/own-environment.md)")
     train.set_defaults(handler=train_command.run)
     plot = commands.add_parser(
         "plot",
@@ -94,7 +100,8 @@ def make_parser() -> argparse.ArgumentParser:
                        "idle until the last)")
     sweep.add_argument("--scale", default=None, choices=SCALES, help="default: the spec's (laptop)")
     sweep.add_argument("--seeds", default=None,
-                       help="N: seeds 0..N-1; A-B: seeds A..B; A,B,C: those seeds (default: the spec's)")
+                       help="S: seed S alone; A-B: seeds A..B (0-4: five seeds); A,B,C: those seeds "
+                       "(default: the spec's)")
     sweep.add_argument("--tasks", default=None, metavar="A,B",
                        help="comma-separated task ids in place of the spec's (e.g. part of figure1)")
     sweep.add_argument("--root", default="runs", help="sweep root directory (default runs)")
@@ -154,11 +161,13 @@ def make_parser() -> argparse.ArgumentParser:
         "mean action; episode k starts from seed SEED+k.",
     )
     evaluate.add_argument("path", metavar="RUN_DIR_OR_CHECKPOINT")
-    evaluate.add_argument("--episodes", type=int, default=10)
-    evaluate.add_argument("--seed", type=int, default=0)
-    evaluate.add_argument("--video", default=None, metavar="OUT.mp4", help="also render episodes to MP4")
-    evaluate.add_argument("--video-episodes", type=int, default=1, help="episodes in the video")
-    evaluate.add_argument("--video-size", default="480x480", help="WIDTHxHEIGHT in pixels")
+    evaluate.add_argument("--episodes", type=int, default=10, help="deterministic episodes (default 10)")
+    evaluate.add_argument("--seed", type=int, default=0,
+                          help="episode k is reset with seed SEED+k (default 0)")
+    evaluate.add_argument("--video", default=None, metavar="OUT.mp4",
+                          help="also render episodes to MP4 (default: no video)")
+    evaluate.add_argument("--video-episodes", type=int, default=1, help="episodes in the video (default 1)")
+    evaluate.add_argument("--video-size", default="480x480", help="WIDTHxHEIGHT in pixels (default 480x480)")
     evaluate.add_argument("--allow-import", action="append", default=[], metavar="MODULE",
                           help="allow a file naming a 'MODULE:Env' task to import MODULE (runs its code)")
     evaluate.set_defaults(handler=evaluate_command.run)
@@ -194,7 +203,8 @@ def make_parser() -> argparse.ArgumentParser:
     gradient_error.set_defaults(handler=gradient_error_command.run)
     # `svrpo bench` owns its options (svrpo/tools/bench.py); everything after `bench` is passed through.
     bench = commands.add_parser("bench", add_help=False,
-                                help="quick sampling-vs-physics and update-cost check of this machine")
+                                help="quick sampling-vs-physics and update-cost check of this machine "
+                                "(`svrpo bench --help`: its options and defaults)")
     bench.set_defaults(handler=bench_command.run)
     fields = commands.add_parser("fields", help="list every config field with its meaning",
                                  description="Every config field (set any of them as --field value), "
@@ -206,7 +216,23 @@ def make_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def package_version() -> str:
+    """The installed distribution's version (pyproject.toml's, through the package metadata), as
+    svrpo.__version__ reads it."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("svrpo")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "0+unknown"
+
+
 def main(argv: list[str] | None = None) -> int:
+    # `--env my_envs:make_env` names a module in the current folder (docs/own-environment.md):
+    # `python -m svrpo` puts that folder on the import path, the `svrpo` script does not.
+    # Appended, so that a file of the folder cannot shadow an installed package.
+    if "" not in sys.path and os.getcwd() not in sys.path:
+        sys.path.append(os.getcwd())
     parser = make_parser()
     try:
         args, extra = parser.parse_known_args(argv)
@@ -214,7 +240,15 @@ def main(argv: list[str] | None = None) -> int:
         print(error, file=sys.stderr)
         return 2
     try:
-        return int(args.handler(args, extra))
+        code = int(args.handler(args, extra))
+        sys.stdout.flush()  # inside the try: a reader gone shows here, not at interpreter exit
+        return code
+    except BrokenPipeError:
+        # The reader of stdout left (`svrpo fields | head -5`): stop quietly, as Python's docs
+        # advise (stdout to devnull, so that the exit flush raises nothing either).
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1
     except CommandLineError as error:  # a subcommand's own parser (svrpo bench)
         print(error, file=sys.stderr)
         return 2

@@ -20,7 +20,13 @@ def run(args: argparse.Namespace, extra: list[str]) -> int:
         raise UsageError(f"--video-size must be WIDTHxHEIGHT, e.g. 480x480; got {args.video_size!r}")
     if args.video:  # a video path that cannot be written fails now, not after the evaluation
         check_writable(Path(args.video), "--video")
-    result = evaluate(Path(args.path), args.episodes, args.seed, args.allow_import)
+    from svrpo.errors import EnvError
+    from svrpo.sampling.envs import ImportNotAllowedError
+
+    try:
+        result = evaluate(Path(args.path), args.episodes, args.seed, args.allow_import)
+    except ImportNotAllowedError as error:  # worded for the command line, not the Python API
+        raise EnvError(error.worded(python=False)) from None
     policy = result.policy
     print(f"{policy.config.env_id}, iteration {policy.iteration} ({policy.env_steps} steps), "
           f"{policy.checkpoint}: return {result.mean:.2f} +- {result.std:.2f} (mean +- std over "

@@ -14,7 +14,8 @@ from svrpo.errors import one_line as checkpoint_one_line
 def _readable_runs(run_dirs: list[Path]) -> tuple[list[Path], set[str]]:
     """The runs whose config.json and progress.csv parse, and the columns they have; each
     skipped run is named in one line (a half-written cell in one run must not stop the report).
-    None readable: one UsageError line saying why (nothing is drawn)."""
+    None readable (e.g. only runs with no row yet): one UsageError line saying why (nothing is
+    drawn)."""
     from svrpo.rundir.progress_log import read_progress
 
     readable: list[Path] = []
@@ -23,13 +24,15 @@ def _readable_runs(run_dirs: list[Path]) -> tuple[list[Path], set[str]]:
     for run_dir in run_dirs:
         try:
             json.loads((run_dir / "config.json").read_text())["env_id"]  # noqa: B018 - a check
-            read_progress(run_dir / "progress.csv")  # every cell must parse
+            rows = read_progress(run_dir / "progress.csv")  # every cell must parse
         except (OSError, ValueError, KeyError, TypeError) as error:
             skipped.append(f"{run_dir}: unreadable ({checkpoint_one_line(error)})")
             continue
+        if not rows:  # just started, or a header cut short or empty: nothing to draw
+            skipped.append(f"{run_dir}: no iteration logged yet (progress.csv has no row)")
+            continue
         readable.append(run_dir)
-        with open(run_dir / "progress.csv") as handle:  # the header, also of a run with no rows yet
-            columns.update(handle.readline().strip().split(","))
+        columns.update(rows[0])
     if not readable and skipped:
         raise UsageError(f"no readable run to plot: {'; '.join(skipped)}")
     for line in skipped:

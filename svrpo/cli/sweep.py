@@ -42,22 +42,28 @@ def sweep_backend(args: argparse.Namespace) -> Backend:
     return RayBackend(address=args.address, max_retries=retries)
 
 
-def parse_seed_option(text: str) -> int | list[int]:
-    """--seeds: N (seeds 0..N-1), A-B (A..B inclusive) or A,B,C; UsageError otherwise."""
+def parse_seed_option(text: str) -> list[int]:
+    """--seeds: S (seed S alone), A-B (seeds A..B inclusive) or A,B,C; UsageError otherwise.
+
+    A bare number is one seed, not a count: `--seeds 200` meant as seed 200 once started the
+    200 runs of seeds 0-199 (issue 57); N seeds are `0-(N-1)`. (A spec file's `seeds: N` is
+    still a count.)"""
     try:
         if "," in text:
-            return [int(part) for part in text.split(",")]
-        if "-" in text.strip("-"):
+            seeds = [int(part) for part in text.split(",")]
+        elif "-" in text.strip("-"):
             first, last = (int(part) for part in text.split("-"))
             if last < first:
                 raise UsageError(f"--seeds {text}: the range ends before it starts")
-            return list(range(first, last + 1))
-        count = int(text)
+            seeds = list(range(first, last + 1))
+        else:
+            seeds = [int(text)]
     except ValueError:
-        raise UsageError(f"--seeds takes N (seeds 0..N-1), A-B or A,B,C; got {text!r}") from None
-    if count < 1:
-        raise UsageError(f"--seeds must be >= 1; got {count}")
-    return count
+        raise UsageError(f"--seeds takes S (that one seed), A-B (seeds A..B, e.g. 0-4 for five seeds) "
+                         f"or A,B,C; got {text!r}") from None
+    if min(seeds) < 0:
+        raise UsageError(f"--seeds must be seeds >= 0; got {text!r}")
+    return seeds
 
 
 def run(args: argparse.Namespace, extra: list[str]) -> int:

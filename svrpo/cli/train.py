@@ -67,6 +67,9 @@ def _default_out(config: Config, preset: str) -> Path:
 
 
 def run(args: argparse.Namespace, extra: list[str]) -> int:
+    if args.auto_resume and (args.resume is not None or args.overwrite):
+        raise UsageError("--auto-resume decides by itself whether to resume: drop "
+                         + ("--resume" if args.resume is not None else "--overwrite"))
     if args.resume is not None:
         run_dir = Path(args.resume)
         config_path = run_dir / "config.json"
@@ -102,7 +105,13 @@ def run(args: argparse.Namespace, extra: list[str]) -> int:
         config = _build_config(args, extra)
         preset = args.preset
         run_dir = Path(args.out) if args.out else _default_out(config, preset)
-        if args.restart_episodes:
+        if args.auto_resume:
+            from svrpo.rundir.run_files import resume_if_exists
+
+            if resume_if_exists(run_dir, config):  # RunDirectoryError: a run of another config
+                print(f"note: {run_dir} holds this run: resuming it", file=sys.stderr)
+                args.resume = str(run_dir)
+        if args.restart_episodes and args.resume is None and not args.auto_resume:
             raise UsageError("--restart-episodes applies to --resume only")
     from svrpo.sampling.envs import env_info
 

@@ -68,7 +68,7 @@ def _tune_study(spec: TuneSpec, args: argparse.Namespace, backend: Backend, root
 
     if args.storage is None:
         make_directory()  # the default SQLite file lives in it
-    study = stored.open_study(spec, storage)
+    study = stored.open_study(spec, storage, root, say=lambda text: print(text, file=sys.stderr))
     make_directory()
     signal.signal(signal.SIGTERM, raise_keyboard_interrupt)  # stop like Ctrl-C: runs checkpoint
     print(f"study {spec.name} in {storage}: {target} trials of {len(spec.tasks)} tasks x "
@@ -98,8 +98,13 @@ def _tune_study(spec: TuneSpec, args: argparse.Namespace, backend: Backend, root
     bar.close()
     outputs.write_outputs(spec, study, directory, storage)
     best = f"; best: trial {summary.best[0]}, score {summary.best[1]:.4f}" if summary.best else ""
+    written = (outputs.TRIALS_CSV, *((outputs.BEST_YAML,) if summary.best else ()), outputs.REPORT)
     print(f"{summary.finished} of {summary.target} trials finished{best}. Results in {directory}/ "
-          f"({outputs.TRIALS_CSV}, {outputs.BEST_YAML}, {outputs.REPORT}, plots)")
+          f"({', '.join(written)}, plots)")
+    if summary.best is None and summary.finished:
+        print(f"no trial completed, so there is no {outputs.BEST_YAML}: {outputs.TRIALS_CSV}'s failure "
+              "column says why each one failed", file=sys.stderr)
+        return 1
     if summary.interrupted:
         print(f"trials {', '.join(map(str, summary.interrupted))} were interrupted: run the same "
               "command again to resume them", file=sys.stderr)

@@ -50,6 +50,10 @@ TENSORBOARD_NAMESPACES: dict[str, str] = {column: namespace for namespace, colum
 scalars (rollout/, train/, time/, eval/); env_steps is the step of every scalar, not a scalar."""
 
 
+PROGRESS_COLUMNS: tuple[str, ...] = ("env_steps", *TENSORBOARD_NAMESPACES)
+"""Every column of progress.csv (env_steps and the namespaced ones), in no particular order."""
+
+
 def tensorboard_tag(column: str) -> str:
     """NAMESPACE/column for TensorBoard; KeyError for a column with no namespace yet."""
     if column not in TENSORBOARD_NAMESPACES:
@@ -164,11 +168,9 @@ class RunLogger:
                 self._writer.add_scalar(tensorboard_tag(key), value, step)
         self._writer.flush()
         self._bar.update(step - self._bar.n)
-        postfix = {
-            "return": _short(row.get("average_return")),
-            "steps/s": _short(row.get("steps_per_second")),
-        }
-        self._bar.set_postfix(postfix, refresh=True)
+        # One rate: tqdm's environment steps per second of the whole iteration (sampling and
+        # update); the sampling-only rate is progress.csv's steps_per_second.
+        self._bar.set_postfix({"return": _short(row.get("average_return"))}, refresh=True)
 
     def message(self, text: str) -> None:
         """A line printed above the progress bar."""

@@ -14,6 +14,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+from svrpo.config import Config, differing_fields
 from svrpo.rundir.run_lock import LOCK_FILE
 
 RUN_FILES = ("config.json", "run.json", "progress.csv", "train.log", "learning_curve.png",
@@ -34,6 +35,29 @@ class NotARunError(RunDirectoryError):
 def is_run_directory(path: Path) -> bool:
     """Whether `path` is a directory holding a run's config.json (written first by every run)."""
     return path.is_dir() and not path.is_symlink() and (path / "config.json").is_file()
+
+
+def resume_if_exists(path: Path, config: Config) -> bool:
+    """"Resume if it exists, else start" (a preemptible job re-running one command): True when
+    `path` holds a run (its config.json) of `config`, which is then resumed, extended if
+    config.total_steps is larger; False when it holds none, so the run starts.
+    RunDirectoryError when it holds a run of another config, or more total_steps (nothing
+    touched)."""
+    if not is_run_directory(path):
+        return False
+    try:
+        saved = Config.from_json((path / "config.json").read_text())
+    except (OSError, ValueError, TypeError) as error:
+        raise RunDirectoryError(f"cannot resume {path}: its config.json is unreadable ({error})") from None
+    changed = sorted(set(differing_fields(saved, config)) - {"total_steps"})
+    if changed:
+        raise RunDirectoryError(
+            f"{path} holds a run of another config (it differs in {', '.join(changed)}): resuming "
+            "it would not be this run; give another directory, or --overwrite (overwrite=True)")
+    if config.total_steps < saved.total_steps:
+        raise RunDirectoryError(f"{path} holds this run with total_steps {saved.total_steps}, more "
+                                f"than {config.total_steps}: a resume can only extend a run")
+    return True
 
 
 def foreign_entries(path: Path) -> list[str]:

@@ -154,10 +154,10 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
         branch = mkl_code_branch()
         notes += [note for note in (cpu_numerics_note(branch), record_mkl_branch(run_dir, branch))
                   if note is not None]
-        uncaptured = uncaptured_state(run.sampler.get_state())
-        if uncaptured:
-            notes.append(f"note: the env keeps state a checkpoint cannot hold ({', '.join(uncaptured)}): "
-                         "resuming this run will need --restart-episodes (docs/own-environment.md)")
+        # Said once, from the first state this process checkpoints (an empty list is captured:
+        # whether the env fills it shows only once it has stepped); not after a resume that
+        # already accepted restarted episodes.
+        noted = restart_episodes
         write_config(run_dir, config)  # on resume only if it changed (e.g. more total_steps)
         total = config.iterations * config.steps_per_iteration
         logger = RunLogger(run_dir, total, run.env_steps, show_progress)
@@ -174,6 +174,12 @@ def _train(config: Config, run_dir: Path, resume: bool, show_progress: bool,
                 row = result.progress_row()
                 logger.log(row)
                 last_state = run.state_dict(_read_progress(progress))
+                uncaptured = [] if noted else uncaptured_state(last_state["sampler"])
+                if uncaptured:
+                    logger.message(f"note: the env keeps state a checkpoint cannot hold ("
+                                   f"{', '.join(uncaptured)}): resuming this run will need "
+                                   "--restart-episodes (docs/own-environment.md)")
+                    noted = True
                 stop = callback is not None and callback(row) is False
                 if (run.iteration % config.checkpoint_every == 0 or run.iteration == config.iterations
                         or stop):

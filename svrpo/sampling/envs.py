@@ -73,16 +73,30 @@ def horizon(env_id: str, max_episode_steps: int | None = None) -> int:
     return DEFAULT_HORIZON if registered is None else int(registered)
 
 
-def check_import_allowed(env_id: str, allowed: Collection[str], source: object) -> None:
-    """EnvError unless env_id names no module, or its module is among `allowed`.
+class ImportNotAllowedError(EnvError):
+    """A file names a "module:Env" task whose module the caller did not allow to be imported."""
+
+    def __init__(self, env_id: str, module: str, source: object, python: bool = False) -> None:
+        self.env_id, self.module, self.source = env_id, module, source
+        super().__init__(self.worded(python))
+
+    def worded(self, python: bool) -> str:
+        """The message for a Python caller (the allow_import parameter) or the command line."""
+        how = f"allow_import=[{self.module!r}]" if python else f"--allow-import {self.module}"
+        return (f"{self.source} names the task {self.env_id!r}: using it imports the module "
+                f"{self.module!r}, which runs its code; if you trust the file, pass {how}")
+
+
+def check_import_allowed(env_id: str, allowed: Collection[str], source: object, python: bool = False) -> None:
+    """ImportNotAllowedError (an EnvError) unless env_id names no module, or its module is among
+    `allowed`; `python`: word it for a Python caller (allow_import=[...], not --allow-import).
 
     A "module:Env" id read from a file (a checkpoint, a config.json) would import that module,
     running its code: loading a file must not do that unless the user names the module.
     """
     module = env_id.rpartition(":")[0]
     if module and module not in allowed:
-        raise EnvError(f"{source} names the task {env_id!r}: using it imports the module {module!r}, "
-                       f"which runs its code; if you trust the file, pass --allow-import {module}")
+        raise ImportNotAllowedError(env_id, module, source, python)
 
 
 def env_id_of(factory: Callable[[], gym.Env]) -> str:
@@ -177,10 +191,11 @@ def get_env_state(env: gym.Env) -> dict[str, Any]:
 
     MuJoCo envs: the MuJoCo integration state. Every env and each of its wrappers: its numeric,
     boolean, string and None attributes and tuples of them (`state`, `last_u`, a wrapper's step
-    counter, ...), which is all of the dynamic state of Gymnasium's own tasks and wrappers; and
-    the env's reset generator. Attributes held in other objects (a list, a dict, an object of
-    the user's) cannot be captured: their names are listed under "uncaptured", and a resume
-    from such a state is refused unless episodes may restart (docs/own-environment.md).
+    counter, ...), which is all of the dynamic state of Gymnasium's own tasks and wrappers, and
+    its empty lists and dicts; and the env's reset generator. Attributes held in other objects
+    (a list or dict with items, a deque, an object of the user's) cannot be captured: their names
+    are listed under "uncaptured", and a resume from such a state is refused unless episodes may
+    restart (docs/own-environment.md).
     Observations and episode bookkeeping are the caller's business.
     """
     base: Any = env.unwrapped
@@ -237,18 +252,27 @@ def _wrappers(env: gym.Env) -> list[gym.Wrapper]:
 
 
 def _plain_attributes(layer: Any) -> dict[str, Any]:
-    return {name: value.copy() if isinstance(value, np.ndarray) else value
-            for name, value in vars(layer).items() if _plain(value) and name != "_np_random"}
+    return {name: _copied(value) for name, value in vars(layer).items()
+            if _plain(value) and name != "_np_random"}
 
 
 def _restore_attributes(layer: Any, attributes: dict[str, Any]) -> None:
     for name, value in attributes.items():
-        setattr(layer, name, value.copy() if isinstance(value, np.ndarray) else value)
+        setattr(layer, name, _copied(value))
+
+
+def _copied(value: Any) -> Any:
+    """An array or an (empty) list or dict as a new object: restored state shares nothing."""
+    return value.copy() if isinstance(value, (np.ndarray, list, dict)) else value
 
 
 def _plain(value: Any) -> bool:
-    """A value get_env_state keeps: a number, bool, string, None, numeric/boolean array, or a
-    tuple of these (immutable: replaced, never changed in place)."""
+    """A value get_env_state keeps: a number, bool, string, None, numeric/boolean array, a
+    tuple of these (immutable: replaced, never changed in place), or an empty list or dict (an
+    unused one holds no state; restored as a new empty one, and one holding items when the
+    checkpoint is taken is not captured)."""
+    if type(value) in (list, dict):
+        return not value
     if isinstance(value, np.ndarray):
         return value.dtype.kind in "biuf"
     if isinstance(value, tuple):

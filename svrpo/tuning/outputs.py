@@ -77,14 +77,18 @@ NORMALISED = "normalised by the task's reference: (R - low) / (high - low)"
 
 
 def best_config_text(spec: TuneSpec, study: optuna.Study, trial: optuna.trial.FrozenTrial) -> str:
-    """best.yaml: the preset, scale, first task, the spec's overrides and the trial's fields."""
+    """best.yaml: the preset, scale, first task, the study's budget (total_steps), the spec's
+    overrides and the trial's fields."""
     task = next(iter(spec.tasks))
-    fields = {"env_id": task, **trial_fields(spec, trial.params, task), **spec.overrides}
+    fields = {"env_id": task, "total_steps": spec.steps, **trial_fields(spec, trial.params, task),
+              **spec.overrides}
     header = (f"Best trial of the study {spec.name}: trial {trial.number}, score {float(trial.value):.4f}\n"  # type: ignore[arg-type]
               f"(mean over {', '.join(spec.tasks)} of the final-window {spec.objective.metric},\n"
               f"{NORMALISED}; "
               f"{_count(len(spec.seeds), 'seed')} each, {spec.steps} environment steps per run).\n"
-              "Train it: svrpo train --config best.yaml [--env TASK] [--steps N]")
+              "total_steps is the study's budget: the trial was scored at it.\n"
+              "Train it: svrpo train --config best.yaml [--env TASK] [--steps N] (or svrpo.train(\n"
+              "config=\"best.yaml\", steps=N)); --steps N trains N steps instead.")
     return config_file_text(spec.preset, spec.scale, fields, header)
 
 
@@ -122,6 +126,9 @@ def write_plots(study: optuna.Study, directory: Path) -> dict[str, str]:
         figure = (axes.flat[0] if hasattr(axes, "flat") else axes).figure
         if not figure.axes or not any(ax.has_data() for ax in figure.axes):
             skipped[name] = "not enough complete trials"
+            plt.close(figure)
+            (directory / name).unlink(missing_ok=True)  # an earlier, now stale, drawing
+            continue
         figure.set_size_inches(9, 5.5)
         figure.tight_layout()
         _save_png(figure, directory / name)

@@ -34,10 +34,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from svrpo.config import Config, coerce_field
+from svrpo.config import Config, coerce_field, config_problems
 from svrpo.errors import ConfigError, SpecError
 from svrpo.presets import PRESET_NAMES, SCALES, default_scale, make_preset
-from svrpo.tuning.space import UNTUNABLE, SearchParam, parse_space
+from svrpo.tuning.space import UNTUNABLE, SearchParam, parse_space, resolve
 from svrpo.yaml_input import YamlDocument, is_int, is_number, read_yaml
 
 PrunerKind = Literal["median", "successive_halving", "none"]
@@ -182,7 +182,88 @@ def tune_spec_from_document(document: YamlDocument, default_name: str = "study")
             raise fail(str(error), "tasks", task) from None
     if spec.rung_steps[0] < 1:
         raise fail(f"steps {steps} cannot be split into {rungs} rungs", "pruner", "rungs")
+    for task in tasks:
+        base = spec.base_config(task, seeds[0])
+        _check_ranges(spec, base, fail)
+        _check_budget(spec, task, [base, *_extreme_configs(spec, base)], fail)
     return spec
+
+
+FIXED_LENGTH_TASKS = ("HalfCheetah", "Swimmer", "Reacher", "Pusher")
+"""Gymnasium MuJoCo tasks whose episodes never terminate: each one ends at the time limit, so a
+run logs no return (average_return is NaN) until every environment has stepped that far."""
+
+EPISODE_METRICS = ("average_return", "episode_length", "episodes")
+"""Progress columns that have a value only in an iteration in which a training episode ended."""
+
+
+def _extreme_configs(spec: TuneSpec, base: Config) -> list[Config]:
+    """The trial configs with every numeric searched field at its low end, then at its high end
+    (categoricals at the base's value; a fraction of its base field's value there), not
+    validated: only their iteration's size and layout are read (a trial drawn near an end that
+    cannot run fails by itself)."""
+    numeric = tuple(param for param in spec.space if param.kind != "categorical")
+    ends = ({param.name: getattr(param, end) for param in numeric} for end in ("low", "high"))
+    return [dataclasses.replace(base, **resolve(numeric, params, base)) for params in ends]
+
+
+def _check_ranges(spec: TuneSpec, base: Config, fail: Any) -> None:
+    """A searched range whose end makes a field invalid on its own (max_kl <= 0, a fraction of
+    batch_size above 1 for minibatch_size): every trial drawn near it would fail."""
+    for param in spec.space:
+        if param.kind == "categorical":
+            continue
+        for end in ("low", "high"):
+            value = resolve((param,), {param.name: getattr(param, end)}, base)[param.field]
+            problems = config_problems(dataclasses.replace(base, **{param.field: value}))
+            own = [problem for problem in problems if problem.split()[0] == param.field]
+            if own:
+                raise fail(f"{param.field}: {end} {getattr(param, end):g} makes the field invalid ("
+                           f"{own[0]}); keep the range inside the field's valid values",
+                           "space", param.field, end)
+
+
+def _check_budget(spec: TuneSpec, task: str, configs: list[Config], fail: Any) -> None:
+    """A budget in which no trial can run one iteration, or, on a task whose episodes all last
+    the time limit, in which a run's first rung ends before its first episode does (then the
+    run has no score: average_return is NaN until every environment reached the limit)."""
+    smallest = min(configs, key=lambda config: config.steps_per_iteration)
+    if spec.steps < smallest.steps_per_iteration:
+        raise fail(f"steps {spec.steps} is below one iteration on {task}: the trial configs sample "
+                   f"at least {smallest.steps_per_iteration} environment steps per iteration "
+                   f"(batch_size N = {smallest.batch_size}), so no trial could train; raise steps or "
+                   "search a smaller batch_size", "steps")
+    if spec.objective.metric not in EPISODE_METRICS or task.split("-v")[0] not in FIXED_LENGTH_TASKS:
+        return
+    config = max(configs, key=first_episode_steps)
+    needed = first_episode_steps(config)
+    count = len(spec.rung_steps)
+    if spec.rung_steps[0] < needed:
+        environments = max(config.num_workers, 1) * config.envs_per_worker
+        stage = f"each of the {count} rungs needs" if count > 1 else "the budget needs"
+        raise fail(f"{task}'s episodes end only at its time limit ({_horizon(task, config)} steps): a run "
+                   f"of {environments} environments logs its first {spec.objective.metric} after "
+                   f"{needed} steps ({needed // config.steps_per_iteration} iterations of "
+                   f"{config.steps_per_iteration}), and {stage} that many: steps must be at least "
+                   f"{needed * count} (or use fewer rungs, fewer environments or a shorter "
+                   "max_episode_steps)", "steps")
+
+
+def _horizon(task: str, config: Config) -> int:
+    from svrpo.sampling.envs import horizon
+
+    return horizon(task, config.max_episode_steps)
+
+
+def first_episode_steps(config: Config) -> int:
+    """The environment steps, in whole iterations, after which a run of `config`
+    has logged a complete episode when every episode lasts the time limit H. Each of the E
+    environments steps at least floor(N / E) times per iteration, and the last one's first
+    episode is a whole H (staggered or not): ceil(H / floor(N / E)) iterations of S steps."""
+    environments = max(config.num_workers, 1) * config.envs_per_worker
+    per_environment = config.batch_size // environments
+    iterations = -(-_horizon(config.env_id, config) // max(per_environment, 1))
+    return iterations * config.steps_per_iteration
 
 
 def _mapping(value: Any, key: str, allowed: tuple[str, ...], fail: Any) -> dict[str, Any]:
@@ -237,9 +318,15 @@ def _seeds(value: Any, fail: Any) -> tuple[int, ...]:
 def _objective(value: Any, fail: Any) -> Objective:
     values = _mapping(value, "objective", ("metric", "window"), fail)
     metric = values.get("metric", "average_return")
-    if not isinstance(metric, str) or not metric:
-        raise fail(f"objective.metric must be a progress.csv column name; got {metric!r}",
-                   "objective", "metric")
+    from svrpo.rundir.progress_log import PROGRESS_COLUMNS
+
+    if not isinstance(metric, str) or metric not in PROGRESS_COLUMNS or metric == "env_steps":
+        import difflib
+
+        close = difflib.get_close_matches(str(metric), PROGRESS_COLUMNS, n=2)
+        hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+        raise fail(f"objective.metric must be a progress.csv column; got {metric!r}{hint}; the "
+                   "columns: docs/training.md", "objective", "metric")
     window = values.get("window", 0.1)
     if not is_number(window) or not 0 < window <= 1:
         raise fail(f"objective.window must be a fraction of the budget in (0, 1]; got {window!r}",

@@ -70,26 +70,77 @@ def make_pruner(spec: TuneSpec) -> Any:
     return optuna.pruners.NopPruner()
 
 
-def open_study(spec: TuneSpec, storage_url: str) -> optuna.Study:
-    """Create or load the study named spec.name; SpecError if it was made by another spec."""
+def open_study(spec: TuneSpec, storage_url: str, root: Path | None = None,
+               say: Any = None) -> optuna.Study:
+    """Create or load the study named spec.name; SpecError if it was made by another spec and
+    holds a trial of value. A study of another spec with no complete or pruned trial and no
+    trial a live tuner works on (e.g. every trial failed on a bad objective) is replaced: it is
+    deleted from the storage with its trial directories under `root`, and `say` tells it."""
     import optuna
 
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    # Errors only: svrpo says each trial's outcome itself ("trial 3: failed: ..."); Optuna's own
+    # warnings repeated it as "[W ...]" lines (a failed trial, a plot of no complete trial).
+    optuna.logging.set_verbosity(optuna.logging.ERROR)
     storage = open_storage(storage_url)
-    study = optuna.create_study(study_name=spec.name, storage=storage, direction="maximize",
-                                load_if_exists=True, sampler=make_sampler(spec, 0),
-                                pruner=make_pruner(spec))
+
+    def create() -> optuna.Study:
+        return optuna.create_study(study_name=spec.name, storage=storage, direction="maximize",
+                                   load_if_exists=True, sampler=make_sampler(spec, 0),
+                                   pruner=make_pruner(spec))
+
+    study = create()
     recorded = study.user_attrs.get("spec")
-    if recorded is None:
-        study.set_user_attr("spec", spec.identity())
-    elif recorded != spec.identity():
+    if recorded is not None and recorded != spec.identity():
         import json
 
         old, new = json.loads(recorded), json.loads(spec.identity())
-        changed = [key for key in new if old.get(key) != new[key]]
-        raise SpecError(f"the study {spec.name} in {storage_url} was made from another spec (it differs "
-                        f"in {', '.join(changed)}); give it another name, or another --root/--storage")
+        changed = ", ".join(key for key in new if old.get(key) != new[key])
+        if not _replaceable(spec, study, root):
+            raise SpecError(f"the study {spec.name} in {storage_url} was made from another spec (it "
+                            f"differs in {changed}); give it another name, or another --root/--storage")
+        _replace(spec, study, storage, root)
+        (say or print)(f"the study {spec.name} was made from another spec (it differed in {changed}) "
+                       "and holds no complete or pruned trial: replaced, with its trial directories")
+        study = create()
+        recorded = None
+    if recorded is None:
+        study.set_user_attr("spec", spec.identity())
     return study
+
+
+def _replaceable(spec: TuneSpec, study: optuna.Study, root: Path | None) -> bool:
+    """Whether `study` holds nothing worth keeping: no complete or pruned trial, and no trial
+    whose directory a live process holds (a running trial of a dead tuner is not one)."""
+    import optuna
+
+    from svrpo.rundir.run_lock import LockedError, exclusive_writer
+
+    kept = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
+    trials = study.get_trials(deepcopy=False)
+    if any(trial.state in kept for trial in trials):
+        return False
+    for trial in trials:
+        if trial.state != optuna.trial.TrialState.RUNNING:
+            continue
+        directory = None if root is None else trial_directory(spec, root, trial.number)
+        if directory is None or not directory.is_dir():
+            return False  # cannot tell whether a tuner still works on it
+        try:
+            with exclusive_writer(directory, "tune trial"):
+                pass
+        except LockedError:
+            return False
+    return True
+
+
+def _replace(spec: TuneSpec, study: optuna.Study, storage: Any, root: Path | None) -> None:
+    import shutil
+
+    import optuna
+
+    optuna.delete_study(study_name=spec.name, storage=storage)
+    if root is not None:
+        shutil.rmtree(study_directory(spec, root) / TRIALS_DIR, ignore_errors=True)
 
 
 def trial_directory(spec: TuneSpec, root: Path, number: int) -> Path:

@@ -218,8 +218,7 @@ def _run_wave(spec: TuneSpec, root: Path, study: optuna.Study, wave: list[TrialW
                     _told_now(study, on_told)
                 continue
             if math.isnan(score):
-                work.failure = (f"no value of {spec.objective.metric} within the budget of {budget} steps "
-                                "(one iteration may be larger than the budget)")
+                work.failure = _no_score(spec, work, budget)
                 continue
             work.trial.set_user_attr("task_scores", task_scores(returns, spec.tasks))
             study.tell(work.trial, score)
@@ -231,6 +230,22 @@ def _run_wave(spec: TuneSpec, root: Path, study: optuna.Study, wave: list[TrialW
             study.tell(work.trial, state=optuna.trial.TrialState.FAIL)
             say(f"trial {work.number}: failed: {work.failure}")
             _told_now(study, on_told)
+
+
+def _no_score(spec: TuneSpec, work: TrialWork, budget: int) -> str:
+    """Why a trial has no score at the end of its budget: no run logged an iteration, or no
+    logged row has a value of the metric (no training episode ended: a task whose episodes are
+    longer than the budget allows)."""
+    from svrpo.experiments.budget import logged_steps
+
+    logged = [logged_steps(work.run_dir(task, seed) / "progress.csv")[0]
+              for task in spec.tasks for seed in spec.seeds]
+    if min(logged) == 0:
+        return (f"a run logged no iteration within the budget of {budget} steps (one iteration is "
+                "larger than the budget)")
+    return (f"no value of {spec.objective.metric} within the budget of {budget} steps: the runs logged "
+            f"iterations but no row has one (e.g. no training episode ended: the task's episodes "
+            "are longer than the budget allows; see docs/tuning.md)")
 
 
 def _told(study: optuna.Study, work: TrialWork) -> bool:

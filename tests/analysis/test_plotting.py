@@ -332,3 +332,63 @@ def test_load_curve_reads_cpu_seconds_as_learner_plus_workers_and_nan_where_eith
     assert math.isnan(curve.values[1])
     assert math.isnan(cpu_seconds({"cpu_learner": 3.0}))  # the workers' seconds unknown
     assert cpu_seconds({"cpu_learner": 3.0, "cpu_workers": 0.5, "wall_time": 9.0}) == 3.5
+
+
+@pytest.mark.parametrize(
+    "progress",
+    ["iteration,env_steps,average_return\n",  # a run just started: a header and no row
+     "iteration,env_steps,avera",  # a header cut short by a killed writer
+     ""],  # an empty file
+    ids=["header-only", "cut-header", "empty"],
+)
+def test_plot_of_a_run_with_no_row_is_one_line_exit_2_and_no_png(tmp_path: Path, progress: str) -> None:
+    """Issue 57: a header-only or cut header exited 0 with a blank PNG; an empty file said
+    "the runs have , ..."."""
+    import subprocess
+    import sys
+
+    run_dir = write_run(tmp_path, "Hopper-v5", "trpo", 0, [1.0], experiment=None)
+    (run_dir / "progress.csv").write_text(progress)
+    result = subprocess.run([sys.executable, "-m", "svrpo.cli", "plot", str(run_dir)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2, result
+    assert result.stderr.count("\n") == 1, result.stderr
+    assert "no iteration logged yet (progress.csv has no row)" in result.stderr
+    assert not (run_dir / "learning_curve.png").exists()
+
+
+def test_a_run_without_rows_is_skipped_beside_runs_that_have_some(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    write_run(tmp_path, "Hopper-v5", "trpo", 0, [1.0, 2.0], experiment=None)
+    started = write_run(tmp_path, "Hopper-v5", "trpo", 1, [1.0], experiment=None)
+    (started / "progress.csv").write_text("iteration,env_steps,average_return\n")
+    assert main(["plot", str(tmp_path)]) == 0
+    assert f"skipped {started}: no iteration logged yet" in capsys.readouterr().err
+    assert (tmp_path / "learning_curve.png").read_bytes()[:8] == PNG
+
+
+def test_a_label_that_is_no_preset_is_not_drawn_in_a_preset_colour(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A user's estimator ("custom-svrg" in run.json) was drawn in matplotlib's first colour,
+    trpo's blue, beside trpo."""
+    from matplotlib.axes import Axes
+
+    from svrpo.analysis.plotting import PRESET_COLORS
+
+    drawn: dict[str, object] = {}
+    original = Axes.plot
+
+    def spy(self: Axes, *args: object, **kwargs: object) -> object:
+        lines = original(self, *args, **kwargs)
+        drawn[str(kwargs.get("label", "")).split(" (")[0]] = lines[0].get_color()
+        return lines
+
+    monkeypatch.setattr(Axes, "plot", spy)
+    write_run(tmp_path, "Hopper-v5", "trpo", 0, [1.0, 2.0], experiment=None)
+    custom = write_run(tmp_path, "Hopper-v5", "svrpo", 0, [1.0, 3.0], experiment=None)
+    (custom / "run.json").write_text(json.dumps({"preset": "custom-svrg"}))
+    assert main(["plot", str(tmp_path)]) == 0
+    from matplotlib.colors import to_hex
+
+    assert to_hex(drawn["trpo"]) == to_hex("tab:blue")  # type: ignore[arg-type]
+    assert to_hex(drawn["custom-svrg"]) not in {to_hex(c) for c in PRESET_COLORS.values()}  # type: ignore[arg-type]

@@ -191,6 +191,27 @@ def test_list_state_resume_is_refused_unless_episodes_may_restart(tmp_path: Path
     assert len(_rows(out)) == 3
 
 
+def test_state_in_a_wrapper_layer_is_named_and_its_resume_refused(tmp_path: Path) -> None:
+    """Issue 57, behaviour 9: the check inspects every wrapper layer, not only the base env.
+    FrameStackObservation keeps its frames in a deque (obs_queue) while InvertedPendulum itself
+    holds only MuJoCo state: a resume that restored the base env alone would continue with other
+    frames, silently different. It is named up front and the resume refused, naming it."""
+    from svrpo.sampling.envs import get_env_state
+    from tests.own_envs import pendulum_frame_stack
+
+    env = pendulum_frame_stack()
+    env.reset(seed=0)
+    assert get_env_state(env)["uncaptured"] == ["FrameStackObservation.obs_queue (deque)"]
+    out = tmp_path / "stacked"
+    trained = _svrpo(*_drift_args("tests.own_envs:pendulum_frame_stack", 600, out), cwd=tmp_path)
+    assert trained.returncode == 0, trained.stderr
+    assert "FrameStackObservation.obs_queue (deque)" in trained.stderr
+    refused = _extend(out, 900)
+    assert refused.returncode == 2
+    assert "FrameStackObservation.obs_queue (deque)" in refused.stderr.splitlines()[-1]
+    assert len(_rows(out)) == 2
+
+
 def test_bad_input_to_the_api_is_one_clear_error_before_anything_is_written(tmp_path: Path) -> None:
     """Config.replace names the field, the value and what is allowed; an env id typo suggests
     the close match; a factory defined in the script itself is refused, saying to move it."""

@@ -344,12 +344,14 @@ def test_a_run_shared_by_two_experiments_is_copied_not_trained_again(tmp_path: P
 
 
 @pytest.mark.parametrize(("option", "seeds", "said"), [
-    ("2", [0, 1], "2 seeds (0-1)"), ("100-102", [100, 101, 102], "3 seeds (100-102)"),
-    ("3,7", [3, 7], "2 seeds (3, 7)"), ("100-100", [100], "1 seeds (100)")])
+    ("0-1", [0, 1], "2 seeds (0-1)"), ("100-102", [100, 101, 102], "3 seeds (100-102)"),
+    ("3,7", [3, 7], "2 seeds (3, 7)"), ("100-100", [100], "1 seeds (100)"),
+    ("200", [200], "1 seeds (200)"), ("0", [0], "1 seeds (0)")])
 def test_sweep_seeds_option_takes_a_count_a_range_or_a_list(tmp_path: Path, option: str,
                                                             seeds: list[int], said: str) -> None:
     """The confirmation runs of a protocol use seeds 100-109, one seed per pass (seed-major across
-    specs): --seeds names them as the user types them, in a subprocess as the user runs it."""
+    specs): --seeds names them as the user types them, in a subprocess as the user runs it. A
+    bare number is that one seed (issue 57: `--seeds 200` started seeds 0-199)."""
     spec = tmp_path / "tiny.yaml"
     spec.write_text(TINY_YAML)
     done = subprocess.run([sys.executable, "-m", "svrpo.cli", "sweep", str(spec), "--seeds", option,
@@ -362,7 +364,7 @@ def test_sweep_seeds_option_takes_a_count_a_range_or_a_list(tmp_path: Path, opti
     assert f"x {said} = " in done.stdout + done.stderr  # the plan's seeds, said before any run
 
 
-@pytest.mark.parametrize("option", ["0", "x", "5-3", "1,,2"])
+@pytest.mark.parametrize("option", ["-1", "x", "5-3", "1,,2"])
 def test_sweep_seeds_option_refuses_what_is_not_seeds(tmp_path: Path, option: str) -> None:
     spec = tmp_path / "tiny.yaml"
     spec.write_text(TINY_YAML)

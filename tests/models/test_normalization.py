@@ -102,3 +102,27 @@ def test_a_run_with_normalize_rewards_scales_every_sampled_batch_as_vecnormalize
     finally:
         scaled_run.sampler.close()
         raw_run.sampler.close()
+
+
+def test_the_running_return_restarts_at_a_time_limit_as_at_a_termination() -> None:
+    """Issue 57, behaviour 10: VecNormalize resets R_e on `dones`, which include time limits.
+    Swimmer never terminates: with a 30-step limit every episode end in these batches is a
+    truncation, so a normaliser that restarted R_e at terminations only would scale them
+    otherwise (the Hopper test above has terminations and no truncation)."""
+    config = make_preset("trpo", "Swimmer-v5", "zoo").replace(batch_size=200, total_steps=400, eval_every=0,
+                                                              max_episode_steps=30)
+    assert config.normalize_rewards and (config.num_workers, config.envs_per_worker) == (0, 2)
+    scaled_run, raw_run = build_run(config), build_run(config.replace(normalize_rewards=False))
+    try:
+        reference = VecNormalizeRewards(2, config.gamma)
+        for _ in range(2):
+            scaled, raw = sample(scaled_run, 200), sample(raw_run, 200)
+            assert not raw.terminated.any() and int(raw.truncated.sum()) >= 6
+            rewards = raw.rewards.numpy().reshape(2, 100).T  # time-major
+            dones = raw.truncated.numpy().reshape(2, 100).T
+            expected = np.stack([reference.step(rewards[k], dones[k]) for k in range(100)]).T.reshape(-1)
+            assert np.array_equal(scaled.rewards.numpy(), expected)
+        assert np.array_equal(scaled_run.reward_normalizer.returns, reference.returns)  # type: ignore[union-attr]
+    finally:
+        scaled_run.sampler.close()
+        raw_run.sampler.close()

@@ -29,7 +29,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("experiments",),                       # sweeps of runs and the named experiments
     ("tuning", "api", "tools"),             # `svrpo tune`; svrpo.train; `svrpo bench`
     ("cli",),                               # the command line
-    ("__init__",),                          # the public names
+    ("__init__", "__main__"),               # the public names; `python -m svrpo`
 )
 """svrpo's top-level modules and folders, bottom layer first; one layer's names import nothing
 of each other."""
