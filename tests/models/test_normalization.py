@@ -10,14 +10,18 @@ must scale its sampled batches with it.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 import pytest
 import torch
 
 from svrpo.algorithm.iteration import sample
-from svrpo.algorithm.run import build_run
+from svrpo.algorithm.run import Run, build_run
+from svrpo.config import Config
 from svrpo.models.normalization import RewardNormalizer
 from svrpo.presets import make_preset
+from svrpo.sampling.sampler import Batch
 
 
 class VecNormalizeRewards:
@@ -86,22 +90,15 @@ def test_a_run_with_normalize_rewards_scales_every_sampled_batch_as_vecnormalize
     consecutive batches are the transcription's on the raw rewards of the same steps, which a
     run without the field samples (same seed, same policy: sampling never reads rewards)."""
     config = make_preset("trpo", "Hopper-v5", "zoo").replace(batch_size=200, total_steps=400, eval_every=0)
-    assert config.normalize_rewards and (config.num_workers, config.envs_per_worker) == (0, 2)
-    scaled_run, raw_run = build_run(config), build_run(config.replace(normalize_rewards=False))
-    try:
-        reference = VecNormalizeRewards(2, config.gamma)
-        for _ in range(2):
-            scaled, raw = sample(scaled_run, 200), sample(raw_run, 200)
-            assert torch.equal(scaled.observations, raw.observations)
-            rewards = raw.rewards.numpy().reshape(2, 100).T  # time-major
-            dones = (raw.terminated | raw.truncated).numpy().reshape(2, 100).T
-            expected = np.stack([reference.step(rewards[k], dones[k]) for k in range(100)]).T.reshape(-1)
-            assert np.array_equal(scaled.rewards.numpy(), expected)
-            assert not np.array_equal(expected, raw.rewards.numpy())
-            np.testing.assert_array_equal(scaled.episode_returns, raw.episode_returns)  # logged raw
-    finally:
-        scaled_run.sampler.close()
-        raw_run.sampler.close()
+    reference = VecNormalizeRewards(2, config.gamma)
+    for scaled, raw, _ in _scaled_and_raw_batches(config, 2):
+        assert torch.equal(scaled.observations, raw.observations)
+        rewards = raw.rewards.numpy().reshape(2, 100).T  # time-major
+        dones = (raw.terminated | raw.truncated).numpy().reshape(2, 100).T
+        expected = np.stack([reference.step(rewards[k], dones[k]) for k in range(100)]).T.reshape(-1)
+        assert np.array_equal(scaled.rewards.numpy(), expected)
+        assert not np.array_equal(expected, raw.rewards.numpy())
+        np.testing.assert_array_equal(scaled.episode_returns, raw.episode_returns)  # logged raw
 
 
 def test_the_running_return_restarts_at_a_time_limit_as_at_a_termination() -> None:
@@ -111,18 +108,24 @@ def test_the_running_return_restarts_at_a_time_limit_as_at_a_termination() -> No
     otherwise (the Hopper test above has terminations and no truncation)."""
     config = make_preset("trpo", "Swimmer-v5", "zoo").replace(batch_size=200, total_steps=400, eval_every=0,
                                                               max_episode_steps=30)
+    reference = VecNormalizeRewards(2, config.gamma)
+    for scaled, raw, scaled_run in _scaled_and_raw_batches(config, 2):
+        assert not raw.terminated.any() and int(raw.truncated.sum()) >= 6
+        rewards = raw.rewards.numpy().reshape(2, 100).T  # time-major
+        dones = raw.truncated.numpy().reshape(2, 100).T
+        expected = np.stack([reference.step(rewards[k], dones[k]) for k in range(100)]).T.reshape(-1)
+        assert np.array_equal(scaled.rewards.numpy(), expected)
+        assert np.array_equal(scaled_run.reward_normalizer.returns, reference.returns)  # type: ignore[union-attr]
+
+
+def _scaled_and_raw_batches(config: Config, batches: int) -> Iterator[tuple[Batch, Batch, Run]]:
+    """`batches` consecutive batches of 200 steps of a run with `config` (rewards normalised) and
+    of its twin without normalisation (same seed, same policy: sampling never reads rewards)."""
     assert config.normalize_rewards and (config.num_workers, config.envs_per_worker) == (0, 2)
     scaled_run, raw_run = build_run(config), build_run(config.replace(normalize_rewards=False))
     try:
-        reference = VecNormalizeRewards(2, config.gamma)
-        for _ in range(2):
-            scaled, raw = sample(scaled_run, 200), sample(raw_run, 200)
-            assert not raw.terminated.any() and int(raw.truncated.sum()) >= 6
-            rewards = raw.rewards.numpy().reshape(2, 100).T  # time-major
-            dones = raw.truncated.numpy().reshape(2, 100).T
-            expected = np.stack([reference.step(rewards[k], dones[k]) for k in range(100)]).T.reshape(-1)
-            assert np.array_equal(scaled.rewards.numpy(), expected)
-        assert np.array_equal(scaled_run.reward_normalizer.returns, reference.returns)  # type: ignore[union-attr]
+        for _ in range(batches):
+            yield sample(scaled_run, 200), sample(raw_run, 200), scaled_run
     finally:
         scaled_run.sampler.close()
         raw_run.sampler.close()
