@@ -163,13 +163,10 @@ def flagged(root: Path) -> list[tuple[str, str, str]]:
 
 
 KNOWN = {
-    ("results/before-core-v2/README.md", "* **Walker2d: SVRPO ahead of TRPO, SGD behind both.**"),
     ("results/before-core-v2/README.md", "* **Variance reduction is real and large.**"),
-    ("results/before-core-v2/README.md", "* **Hopper: a tie.**"),
     ("results/budgeted-trust-region/README.md", "No budgeted variance-reduced configuration moves"),
     ("results/budgeted-trust-region/README.md", "So at the modern scale, letting the inner loop"),
     ("results/corrections.md", "A correction to the interim numbers published at the end of"),
-    ("results/estimators-laptop/README.md", "* **STORM (a = 0.1) lies between**: level with TRPO on Hopper"),
     ("results/figure1-modern/README.md", "Seeds 3-4 of sb3-contrib were added where its first 3 left"),
     ("results/figure1-modern/README.md", '"Not distinguishable" with 3-5 seeds of theirs says no'),
     ("results/figure1-modern/README.md", "At the runs' own states after 200k steps, on Ant, the gain"),
